@@ -1,0 +1,83 @@
+"""Serialisation of an :class:`~sparseart.types.Articulation` (design section 3)."""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .scene import write_json_atomic
+from .types import Articulation, JointEstimate
+
+SCHEMA = "sparseart/articulation/1"
+
+
+def _finite(value: float | None) -> float | None:
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def joint_to_dict(part_id: int, parent: int, joint: JointEstimate) -> dict[str, Any]:
+    """One joint entry of articulation.json; non-finite numbers become null, never NaN."""
+    entry: dict[str, Any] = {
+        "part": part_id,
+        "parent": parent,
+        "type": joint.type,
+        "axis": [float(v) for v in np.asarray(joint.axis, dtype=np.float64)],
+        "origin": [float(v) for v in np.asarray(joint.origin, dtype=np.float64)],
+    }
+    if joint.type == "revolute":
+        entry["angle"] = _finite(joint.angle)
+        entry["slide"] = _finite(joint.slide)
+    else:
+        entry["distance"] = _finite(joint.distance)
+    entry["uncertainty"] = {k: _finite(v) for k, v in joint.uncertainty.items()}
+    entry["residual"] = _finite(joint.residual)
+    entry["confidence"] = _finite(joint.confidence)
+    return entry
+
+
+def articulation_to_dict(result: Articulation) -> dict[str, Any]:
+    """The articulation.json document (schema "sparseart/articulation/1")."""
+    return {
+        "schema": SCHEMA,
+        "frame": {"kind": result.frame_kind, "reference": result.frame_reference, "units": result.units},
+        "parts": [{"id": p.spec.id, "role": p.spec.role, "n_points": p.n_points} for p in result.parts],
+        "joints": [joint_to_dict(p.spec.id, p.spec.parent if p.spec.parent is not None else 0, j)
+                   for p, j in result.joints],
+        "stages": [{"name": s.name, "ran": s.ran, "seconds": round(s.seconds, 4), "why": s.why}
+                   for s in result.stages],
+        "warnings": list(result.warnings),
+    }
+
+
+def write_articulation(result: Articulation, out_dir: str | Path) -> Path:
+    """Write ``out_dir/articulation.json`` atomically and return its path."""
+    path = Path(out_dir) / "articulation.json"
+    write_json_atomic(path, articulation_to_dict(result))
+    return path
+
+
+def summary_lines(result: Articulation) -> list[str]:
+    """A short human summary: one line per joint, then stage times and warnings."""
+    lines = [f"frame: {result.frame_kind} ({result.frame_reference}), units: {result.units}"]
+    if not result.joints:
+        lines.append("no movable part found")
+    for part, joint in result.joints:
+        axis = ", ".join(f"{v:+.3f}" for v in joint.axis)
+        if joint.type == "revolute":
+            amount = (f"angle {math.degrees(joint.angle):.2f} deg "
+                      f"± {math.degrees(joint.uncertainty.get('angle', float('nan'))):.2f}")
+        else:
+            amount = f"distance {joint.distance:.4f} ± {joint.uncertainty.get('distance', float('nan')):.4f}"
+        lines.append(f"part {part.spec.id}: {joint.type:9s} axis [{axis}] "
+                     f"± {joint.uncertainty.get('axis_deg', float('nan')):.2f} deg, {amount}, "
+                     f"origin ± {joint.uncertainty.get('origin', float('nan')):.4f}, "
+                     f"confidence {joint.confidence:.2f}")
+    timing = ", ".join(f"{s.name} {s.seconds:.2f}s" for s in result.stages if s.ran)
+    lines.append(f"time: {timing} (total {sum(s.seconds for s in result.stages):.2f}s)")
+    lines.extend(f"warning: {w}" for w in result.warnings)
+    return lines

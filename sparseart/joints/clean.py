@@ -1,0 +1,62 @@
+"""Outlier and fragment removal for one part's point set (any frame, any units).
+
+``clean_part_points`` = statistical outlier removal (mean distance to the k nearest neighbours,
+robust threshold) followed by connected components of a radius graph (eps from the median point
+spacing), keeping every cluster that holds at least ``min_cluster_fraction`` of the largest one.
+Cost O(N log N) for the k-NN queries plus O(N * neighbours-within-eps) for the radius graph.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+
+def clean_part_points(
+    points: np.ndarray,
+    neighbours: int = 8,
+    mad_factor: float = 4.0,
+    eps_factor: float = 2.5,
+    min_cluster_fraction: float = 0.05,
+) -> np.ndarray:
+    """Boolean keep-mask (N,) for ``points`` (N, 3) float64.
+
+    A point is an outlier when its mean distance to its ``neighbours`` nearest neighbours exceeds
+    ``max(median + mad_factor * 1.4826 * MAD, 2 * median)`` of that statistic over the set.
+    Survivors are linked when closer than ``eps = eps_factor * median k-NN mean distance``;
+    connected clusters smaller than ``min_cluster_fraction`` x the largest are dropped.
+    Non-finite rows are always dropped. Sets too small for statistics (< neighbours + 2 finite
+    points) are returned unchanged apart from non-finite rows. Never returns an all-False mask
+    for a non-empty finite input.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must have shape (N, 3), got {points.shape}")
+    keep = np.all(np.isfinite(points), axis=1)
+    finite_index = np.flatnonzero(keep)
+    if finite_index.size < neighbours + 2:
+        return keep
+    finite_points = points[finite_index]
+    tree = cKDTree(finite_points)
+    distances, _ = tree.query(finite_points, k=neighbours + 1)
+    mean_distance = distances[:, 1:].mean(axis=1)
+    median = float(np.median(mean_distance))
+    mad = float(np.median(np.abs(mean_distance - median)))
+    threshold = max(median + mad_factor * 1.4826 * mad, 2.0 * median)
+    inlier = mean_distance <= threshold if median > 0 else np.ones(finite_index.size, bool)
+    survivors = finite_index[inlier]
+    if survivors.size < neighbours + 2 or median <= 0:
+        keep[:] = False
+        keep[survivors] = True
+        return keep
+    survivor_points = points[survivors]
+    pairs = cKDTree(survivor_points).query_pairs(eps_factor * median, output_type="ndarray")
+    count = survivors.size
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(count, count))
+    _, component = connected_components(graph, directed=False)
+    sizes = np.bincount(component)
+    big = sizes >= min_cluster_fraction * sizes.max()
+    keep[:] = False
+    keep[survivors[big[component]]] = True
+    return keep

@@ -1,0 +1,246 @@
+"""Global-then-local rigid registration of two (possibly partial) views of one rigid part.
+
+Used by the joint fitter (initial motion, putative matches) and by the part labeler (does a
+segment move rigidly between the states?). Hypotheses: identity, centroid shift, centroid + PCA
+frame alignment with the 4 proper sign flips, and open3d FPFH + RANSAC; each is refined by
+open3d point-to-plane ICP with a Tukey robust kernel (coarse then fine). The best hypothesis has
+the highest symmetric inlier fraction; among near-ties the smallest rotation wins (real joints
+rarely exceed 180 deg and symmetric parts such as drawer fronts create flip ambiguities).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from sparseart.joints.screw import apply_transform, make_transform, rotation_angle
+
+
+@dataclass
+class RigidRegistration:
+    """Result of ``register_rigid``.
+
+    transform: (4, 4) float64 source -> target rigid transform, in the input frame and units.
+    rmse: RMS nearest-neighbour distance of inlier source points after alignment (input units).
+    inlier_fraction: in [0, 1]; mean of the source->target and target->source fractions of points
+        with a neighbour closer than the inlier distance (partial views give < 1).
+    correspondences: (K, 2) int64 rows (source index, target index) of inlier nearest neighbours
+        over the full input clouds.
+    diagnostics: hypotheses tried, their scores, the inlier distance.
+    """
+
+    transform: np.ndarray
+    rmse: float
+    inlier_fraction: float
+    correspondences: np.ndarray
+    diagnostics: dict = field(default_factory=dict)
+
+
+def _subsample(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    if points.shape[0] <= count:
+        return np.arange(points.shape[0])
+    return np.sort(rng.choice(points.shape[0], count, replace=False))
+
+
+def _spacing(points: np.ndarray) -> float:
+    """Median nearest-neighbour distance of a set (frame units); O(N log N)."""
+    if points.shape[0] < 2:
+        return 1.0
+    distances, _ = cKDTree(points).query(points, k=2)
+    spacing = float(np.median(distances[:, 1]))
+    return spacing if spacing > 0 else float(np.mean(distances[:, 1])) or 1e-3
+
+
+def _pca_frame(points: np.ndarray) -> np.ndarray:
+    centred = points - points.mean(axis=0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    frame = vt.T
+    if np.linalg.det(frame) < 0:
+        frame[:, 2] *= -1
+    return frame
+
+
+def _hypotheses(source: np.ndarray, target: np.ndarray) -> list[tuple[str, np.ndarray]]:
+    source_centre, target_centre = source.mean(axis=0), target.mean(axis=0)
+    hypotheses = [("identity", np.eye(4)),
+                  ("centroid", make_transform(np.eye(3), target_centre - source_centre))]
+    if source.shape[0] >= 4 and target.shape[0] >= 4:
+        source_frame, target_frame = _pca_frame(source), _pca_frame(target)
+        for flip in ([1, 1, 1], [-1, -1, 1], [-1, 1, -1], [1, -1, -1]):
+            rotation = target_frame @ np.diag(flip) @ source_frame.T
+            hypotheses.append((f"pca{flip}", make_transform(rotation, target_centre - rotation @ source_centre)))
+    return hypotheses
+
+
+def _o3d_cloud(points: np.ndarray, radius: float | None = None):
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+    if radius is not None:
+        cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=30))
+    return cloud
+
+
+def _fpfh_hypothesis(source_cloud, target_cloud, voxel: float, seed: int) -> np.ndarray | None:
+    """open3d FPFH + RANSAC; None when it fails. Roughly O(N log N) for features + RANSAC."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    try:
+        o3d.utility.random.seed(seed)
+        param = o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=100)
+        source_feature = reg.compute_fpfh_feature(source_cloud, param)
+        target_feature = reg.compute_fpfh_feature(target_cloud, param)
+        result = reg.registration_ransac_based_on_feature_matching(
+            source_cloud, target_cloud, source_feature, target_feature, True, 1.5 * voxel,
+            reg.TransformationEstimationPointToPoint(False), 3,
+            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+            reg.RANSACConvergenceCriteria(20000, 0.999))
+    except RuntimeError:
+        return None
+    transform = np.asarray(result.transformation, dtype=np.float64)
+    return transform if np.all(np.isfinite(transform)) and len(result.correspondence_set) >= 3 else None
+
+
+def _icp(source_cloud, target_cloud, init: np.ndarray, distances: tuple[float, ...]) -> np.ndarray:
+    """Coarse-to-fine point-to-plane ICP with a Tukey kernel (open3d); falls back to point-to-point."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    transform = init
+    for distance in distances:
+        if target_cloud.has_normals():
+            estimation = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=distance))
+        else:
+            estimation = reg.TransformationEstimationPointToPoint(False)
+        result = reg.registration_icp(source_cloud, target_cloud, distance, transform, estimation,
+                                      reg.ICPConvergenceCriteria(1e-7, 1e-7, 40))
+        candidate = np.asarray(result.transformation, dtype=np.float64)
+        if np.all(np.isfinite(candidate)):
+            transform = candidate
+    return transform
+
+
+def _score(source: np.ndarray, target: np.ndarray, target_tree: cKDTree, transform: np.ndarray,
+           inlier_distance: float) -> tuple[float, float]:
+    """(inlier_fraction, rmse) of a transform; O((N + M) log(N + M))."""
+    moved = apply_transform(transform, source)
+    forward, _ = target_tree.query(moved)
+    backward, _ = cKDTree(moved).query(target)
+    inlier = forward < inlier_distance
+    fraction = 0.5 * (inlier.mean() + (backward < inlier_distance).mean())
+    rmse = float(np.sqrt(np.mean(forward[inlier] ** 2))) if inlier.any() else float("inf")
+    return float(fraction), rmse
+
+
+def register_rigid(
+    source: np.ndarray,
+    target: np.ndarray,
+    source_colors: np.ndarray | None = None,
+    target_colors: np.ndarray | None = None,
+    init: np.ndarray | None = None,
+    max_points: int = 2000,
+    inlier_factor: float = 3.0,
+    use_fpfh: bool = True,
+    tie_tolerance: float = 0.03,
+    seed: int = 0,
+) -> RigidRegistration:
+    """Rigidly align ``source`` (N, 3) onto ``target`` (M, 3), both float64 in one frame.
+
+    Both clouds may be partial views of the same rigid part. ``init``: optional (4, 4) source ->
+    target guess; when given only it is refined, otherwise all hypotheses are tried (module doc).
+    Colours (N, 3)/(M, 3) in [0, 1], when both are given, drive a final open3d coloured-ICP polish
+    (kept only if it does not lower the inlier fraction). Work happens on random subsamples of at
+    most ``max_points`` per cloud, in coordinates normalised by the joint RMS radius; the
+    inlier distance is ``inlier_factor`` x the median point spacing. Cost about
+    O(H * max_points log max_points) for H hypotheses plus O((N + M) log(N + M)) for the final
+    correspondences. Raises ValueError for fewer than 3 finite points per cloud.
+    """
+    source = np.asarray(source, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    for name, cloud in (("source", source), ("target", target)):
+        if cloud.ndim != 2 or cloud.shape[1] != 3 or cloud.shape[0] < 3 or not np.all(np.isfinite(cloud)):
+            raise ValueError(f"register_rigid: {name} must be finite (N >= 3, 3), got shape {cloud.shape}")
+    rng = np.random.default_rng(seed)
+    centre = np.concatenate([source, target]).mean(axis=0)
+    scale = float(np.sqrt(np.mean(np.sum((np.concatenate([source, target]) - centre) ** 2, axis=1))))
+    if not scale > 0:
+        raise ValueError("register_rigid: all points coincide")
+    normalise = make_transform(np.eye(3) / scale, -centre / scale)
+    denormalise = np.linalg.inv(normalise)
+    source_n, target_n = (source - centre) / scale, (target - centre) / scale
+    source_sub = source_n[_subsample(source_n, max_points, rng)]
+    target_sub = target_n[_subsample(target_n, max_points, rng)]
+    resolution = max(_spacing(source_sub), _spacing(target_sub))
+    inlier_distance = inlier_factor * resolution
+    target_tree = cKDTree(target_sub)
+    source_cloud = _o3d_cloud(source_sub)
+    target_cloud = _o3d_cloud(target_sub, radius=4.0 * resolution)
+    if init is not None:
+        hypotheses = [("init", normalise @ np.asarray(init, dtype=np.float64) @ denormalise)]
+    else:
+        hypotheses = _hypotheses(source_sub, target_sub)
+        if use_fpfh and min(len(source_sub), len(target_sub)) >= 30:
+            source_cloud.estimate_normals(__import__("open3d").geometry.KDTreeSearchParamHybrid(
+                radius=4.0 * resolution, max_nn=30))
+            fpfh = _fpfh_hypothesis(source_cloud, target_cloud, 2.0 * resolution, seed)
+            if fpfh is not None:
+                hypotheses.append(("fpfh", fpfh))
+    coarse = max(0.3, 10.0 * resolution)
+    schedule = (coarse, max(3.0 * inlier_distance, coarse / 4.0), inlier_distance)
+    results = []
+    for name, start in hypotheses:
+        refined = _icp(source_cloud, target_cloud, start, schedule)
+        fraction, rmse = _score(source_sub, target_sub, target_tree, refined, inlier_distance)
+        results.append({"name": name, "transform": refined, "inlier_fraction": fraction, "rmse": rmse,
+                        "angle_deg": float(np.degrees(rotation_angle(refined[:3, :3])))})
+    best_fraction = max(r["inlier_fraction"] for r in results)
+    best_rmse = min(r["rmse"] for r in results if r["inlier_fraction"] >= best_fraction - tie_tolerance)
+    ties = [r for r in results if r["inlier_fraction"] >= best_fraction - tie_tolerance
+            and r["rmse"] <= 1.5 * best_rmse + 1e-12]
+    chosen = min(ties, key=lambda r: r["angle_deg"])
+    transform = chosen["transform"]
+    if source_colors is not None and target_colors is not None:
+        transform = _colored_polish(source_n, target_n, source_colors, target_colors, transform,
+                                    inlier_distance, resolution, target_tree, source_sub, target_sub, rng,
+                                    max_points, chosen["inlier_fraction"])
+    # Full-resolution correspondences.
+    moved_full = apply_transform(transform, source_n)
+    full_distance, full_index = cKDTree(target_n).query(moved_full)
+    inlier_full = full_distance < inlier_distance
+    fraction, rmse = _score(source_sub, target_sub, target_tree, transform, inlier_distance)
+    correspondences = np.stack([np.flatnonzero(inlier_full), full_index[inlier_full]], axis=1).astype(np.int64)
+    diagnostics = {
+        "hypotheses": [{k: v for k, v in r.items() if k != "transform"} for r in results],
+        "chosen": chosen["name"],
+        "inlier_distance": inlier_distance * scale,
+        "scale": scale,
+    }
+    return RigidRegistration(denormalise @ transform @ normalise, rmse * scale, fraction, correspondences,
+                             diagnostics)
+
+
+def _colored_polish(source_n, target_n, source_colors, target_colors, transform, inlier_distance,
+                    resolution, target_tree, source_sub, target_sub, rng, max_points, fraction):
+    """open3d coloured ICP on subsamples; returns the better of the polished and given transform."""
+    import open3d as o3d
+
+    reg = o3d.pipelines.registration
+    try:
+        pick_s = _subsample(source_n, max_points, rng)
+        pick_t = _subsample(target_n, max_points, rng)
+        source_cloud = _o3d_cloud(source_n[pick_s], radius=4.0 * resolution)
+        target_cloud = _o3d_cloud(target_n[pick_t], radius=4.0 * resolution)
+        source_cloud.colors = o3d.utility.Vector3dVector(np.asarray(source_colors, np.float64)[pick_s])
+        target_cloud.colors = o3d.utility.Vector3dVector(np.asarray(target_colors, np.float64)[pick_t])
+        result = reg.registration_colored_icp(source_cloud, target_cloud, inlier_distance, transform,
+                                              reg.TransformationEstimationForColoredICP(),
+                                              reg.ICPConvergenceCriteria(1e-7, 1e-7, 30))
+        polished = np.asarray(result.transformation, dtype=np.float64)
+    except RuntimeError:
+        return transform
+    if not np.all(np.isfinite(polished)):
+        return transform
+    new_fraction, _ = _score(source_sub, target_sub, target_tree, polished, inlier_distance)
+    return polished if new_fraction >= fraction else transform

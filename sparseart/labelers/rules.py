@@ -1,0 +1,346 @@
+"""The default part labeler: rigid-motion consistency, no model needed.
+
+Steps (both clouds in one frame):
+
+1. Segments: mask segments when the scene has masks; otherwise one motion-based split (points of
+   one state farther than a radius from the other state's cloud are "moving", clustered into
+   connected pieces; the rest is static).
+2. Within a state, segments from different images that cover the same surface are merged (mask ids
+   need not agree across images).
+3. Across states, every start group is registered rigidly to every end group; Hungarian matching on
+   the registration cost pairs them. A pair whose best motion is the identity is static.
+4. Moving pairs whose motions agree (one pair's motion carries another pair's start points onto its
+   end points) are merged into one part. Each part gets its start->end motion as evidence and a
+   joint-type prior read off the rotation angle.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from ..types import LabelledCloud, PartLabels, PartSpec, Scene
+
+STATIC_ANGLE_DEG = 1.0          # a matched pair moving less than this and ...
+STATIC_SHIFT_RADII = 1.5        # ... less than this many inlier radii is static
+REVOLUTE_PRIOR_DEG = 10.0       # rotation above this: revolute prior
+PRISMATIC_PRIOR_DEG = 2.0       # rotation below this: prismatic prior (in between: no prior)
+
+
+@dataclass
+class RuleLabelerConfig:
+    """Tuning of the rule-based labeler. Radii are multiples of the measured point spacing."""
+
+    inlier_radius_spacings: float = 3.0
+    min_segment_points: int = 30
+    min_segment_share: float = 0.002
+    merge_overlap: float = 0.5
+    match_min_score: float = 0.3
+    same_motion_overlap: float = 0.6
+    max_points_per_segment: int = 1500
+    motion_radius_spacings: float = 4.0
+    seed: int = 0
+
+
+@dataclass
+class _Group:
+    """Merged segments of one state: the segment ids and (sub-sampled) point indices."""
+
+    segments: list[int]
+    indices: np.ndarray
+    part: int = -1
+    extra: dict = field(default_factory=dict)
+
+
+class RuleBasedLabeler:
+    """Static vs movable by rigid-motion consistency; see the module docstring."""
+
+    name = "rules"
+
+    def __init__(self, config: RuleLabelerConfig | None = None) -> None:
+        self.config = config or RuleLabelerConfig()
+
+    # ------------------------------------------------------------------ public
+
+    def label(self, start: LabelledCloud, end: LabelledCloud, scene: Scene | None = None,
+              aligned: bool = True) -> PartLabels:
+        """Label parts. O(G_s G_e R) with G groups per state and R one registration of
+        <= ``max_points_per_segment`` points, plus O(N log N) KD-tree work."""
+        if len(start) < 10 or len(end) < 10:
+            raise ValueError("too few valid points to label parts (need at least 10 per state)")
+        config = self.config
+        rng = np.random.default_rng(config.seed)
+        spacing = max(_median_spacing(start.points, rng), _median_spacing(end.points, rng))
+        radius = config.inlier_radius_spacings * spacing
+        warnings: list[str] = []
+        has_masks = bool(np.any(start.segment >= 0) and np.any(end.segment >= 0))
+        if has_masks:
+            start_segments, end_segments = start.segment, end.segment
+        else:
+            start_segments, end_segments = _motion_split(start, end, config.motion_radius_spacings * spacing,
+                                                         spacing)
+            warnings.append("no masks: parts come from a motion-based split (points that moved)")
+        start_groups = _merge_across_frames(start, start_segments, radius, config, rng)
+        end_groups = _merge_across_frames(end, end_segments, radius, config, rng)
+        if not start_groups or not end_groups:
+            raise ValueError("no usable segments in one of the states (masks empty after filtering)")
+        pairs = _match_groups(start, end, start_groups, end_groups, radius, config, warnings)
+        return _assign_parts(start, end, start_segments, end_segments, start_groups, end_groups, pairs,
+                             radius, config, warnings, motion_split=not has_masks)
+
+
+# ---------------------------------------------------------------------- helpers
+
+
+def _median_spacing(points: np.ndarray, rng: np.random.Generator, sample: int = 4000) -> float:
+    """Median nearest-neighbour distance of a cloud, from a random sample. O(N log N)."""
+    tree = cKDTree(points)
+    query = points[rng.choice(len(points), size=min(sample, len(points)), replace=False)]
+    distances, _ = tree.query(query, k=2)
+    spacing = float(np.median(distances[:, 1]))
+    return spacing if spacing > 0 else float(np.ptp(points, axis=0).max() * 1e-3 + 1e-12)
+
+
+def _motion_split(start: LabelledCloud, end: LabelledCloud, radius: float,
+                  spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Pseudo-segments without masks: 0 = stayed put, 1..k = connected pieces of moved points."""
+    result = []
+    for cloud, other in ((start, end), (end, start)):
+        distance, _ = cKDTree(other.points).query(cloud.points, k=1)
+        segments = np.zeros(len(cloud), dtype=np.int64)
+        moved = np.flatnonzero(distance > radius)
+        if len(moved):
+            labels = _connected_pieces(cloud.points[moved], 3.0 * spacing)
+            segments[moved] = labels + 1
+        result.append(segments)
+    return result[0], result[1]
+
+
+def _connected_pieces(points: np.ndarray, link_radius: float) -> np.ndarray:
+    """Connected components of the radius graph (label per point, 0..k-1). O(N log N)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    pairs = cKDTree(points).query_pairs(link_radius, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
+    _, labels = connected_components(graph, directed=False)
+    return labels.astype(np.int64)
+
+
+def _merge_across_frames(cloud: LabelledCloud, segments: np.ndarray, radius: float,
+                         config: RuleLabelerConfig, rng: np.random.Generator) -> list[_Group]:
+    """Union segments of different frames that cover the same surface. O(S^2 P log P)."""
+    ids, counts = np.unique(segments[segments >= 0], return_counts=True)
+    minimum = max(config.min_segment_points, config.min_segment_share * len(cloud))
+    kept = [int(i) for i, c in zip(ids, counts) if c >= minimum]
+    members = {s: np.flatnonzero(segments == s) for s in kept}
+    samples = {s: rng.choice(idx, size=min(len(idx), config.max_points_per_segment), replace=False)
+               for s, idx in members.items()}
+    trees = {s: cKDTree(cloud.points[samples[s]]) for s in kept}
+    frame_of = {s: int(cloud.frame_index[members[s][0]]) for s in kept}
+    parent = {s: s for s in kept}
+
+    def find(s: int) -> int:
+        while parent[s] != s:
+            parent[s] = parent[parent[s]]
+            s = parent[s]
+        return s
+
+    for i, a in enumerate(kept):
+        for b in kept[i + 1:]:
+            if frame_of[a] == frame_of[b]:
+                continue
+            overlap_ab = np.mean(trees[b].query(cloud.points[samples[a]], k=1)[0] < radius)
+            overlap_ba = np.mean(trees[a].query(cloud.points[samples[b]], k=1)[0] < radius)
+            if max(overlap_ab, overlap_ba) >= config.merge_overlap:
+                parent[find(a)] = find(b)
+    groups: dict[int, list[int]] = {}
+    for s in kept:
+        groups.setdefault(find(s), []).append(s)
+    result = []
+    for segs in groups.values():
+        indices = np.concatenate([members[s] for s in segs])
+        result.append(_Group(segments=sorted(segs), indices=indices))
+    result.sort(key=lambda g: -len(g.indices))
+    return result
+
+
+def _sample(group: _Group, limit: int, rng: np.random.Generator) -> np.ndarray:
+    if len(group.indices) <= limit:
+        return group.indices
+    return rng.choice(group.indices, size=limit, replace=False)
+
+
+def _overlap(moved: np.ndarray, target_tree: cKDTree, radius: float) -> float:
+    return float(np.mean(target_tree.query(moved, k=1)[0] < radius))
+
+
+def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ transform[:3, :3].T + transform[:3, 3]
+
+
+def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_Group],
+                  end_groups: list[_Group], radius: float, config: RuleLabelerConfig,
+                  warnings: list[str]) -> list[tuple[int, int, np.ndarray, float]]:
+    """Register every start group to every end group and pair them by Hungarian matching.
+
+    Returns (start group, end group, start->end transform (4, 4), score in [0, 1]) per pair.
+    """
+    from ..joints.register import register_rigid
+
+    rng = np.random.default_rng(config.seed + 1)
+    start_samples = [_sample(g, config.max_points_per_segment, rng) for g in start_groups]
+    end_samples = [_sample(g, config.max_points_per_segment, rng) for g in end_groups]
+    end_trees = [cKDTree(end.points[s]) for s in end_samples]
+    scores = np.zeros((len(start_groups), len(end_groups)))
+    transforms: dict[tuple[int, int], np.ndarray] = {}
+    for i, s_idx in enumerate(start_samples):
+        source = start.points[s_idx]
+        for j, e_idx in enumerate(end_samples):
+            size_ratio = len(start_groups[i].indices) / max(len(end_groups[j].indices), 1)
+            if size_ratio > 20 or size_ratio < 0.05:
+                continue
+            target = end.points[e_idx]
+            registration = register_rigid(source, target, source_colors=start.colors[s_idx],
+                                          target_colors=end.colors[e_idx])
+            moved = _apply(registration.transform, source)
+            forward = _overlap(moved, end_trees[j], radius)
+            backward = _overlap(target, cKDTree(moved), radius)
+            colour = _colour_agreement(moved, start.colors[s_idx], target, end.colors[e_idx], radius)
+            scores[i, j] = 0.5 * (forward + backward) * colour
+            transforms[(i, j)] = registration.transform
+    rows, cols = linear_sum_assignment(-scores)
+    pairs = []
+    for i, j in zip(rows, cols):
+        if scores[i, j] >= config.match_min_score:
+            pairs.append((int(i), int(j), transforms[(i, j)], float(scores[i, j])))
+    matched_start = {p[0] for p in pairs}
+    matched_end = {p[1] for p in pairs}
+    unmatched = ([f"start group of {len(g.indices)} points" for k, g in enumerate(start_groups)
+                  if k not in matched_start] +
+                 [f"end group of {len(g.indices)} points" for k, g in enumerate(end_groups)
+                  if k not in matched_end])
+    if unmatched:
+        warnings.append("seen in one state only (occluded, moved out of view, or not rigid): "
+                        + ", ".join(unmatched) + "; left unassigned")
+    return pairs
+
+
+def _colour_agreement(moved: np.ndarray, moved_colors: np.ndarray, target: np.ndarray,
+                      target_colors: np.ndarray, radius: float) -> float:
+    """1 for identical colours of nearest neighbours, falling towards 0.5 for unrelated ones."""
+    distance, nearest = cKDTree(target).query(moved, k=1)
+    close = distance < radius
+    if not np.any(close):
+        return 0.5
+    difference = np.abs(moved_colors[close] - target_colors[nearest[close]]).mean()
+    return float(1.0 - 0.5 * min(1.0, difference / 0.25))
+
+
+def _motion_size(transform: np.ndarray) -> tuple[float, float]:
+    angle = float(np.degrees(np.linalg.norm(Rotation.from_matrix(transform[:3, :3]).as_rotvec())))
+    return angle, float(np.linalg.norm(transform[:3, 3]))
+
+
+def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.ndarray,
+                  end_segments: np.ndarray, start_groups: list[_Group], end_groups: list[_Group],
+                  pairs: list[tuple[int, int, np.ndarray, float]], radius: float,
+                  config: RuleLabelerConfig, warnings: list[str], motion_split: bool) -> PartLabels:
+    """Static pairs -> part 0; moving pairs merged by shared motion -> parts 1..k."""
+    rng = np.random.default_rng(config.seed + 2)
+    static_pairs, moving_pairs = [], []
+    for pair in pairs:
+        i, _, transform, _ = pair
+        angle, _ = _motion_size(transform)
+        centroid = start.points[start_groups[i].indices].mean(axis=0)
+        displacement = float(np.linalg.norm(_apply(transform, centroid[None])[0] - centroid))
+        static = angle < STATIC_ANGLE_DEG and displacement < STATIC_SHIFT_RADII * radius
+        (static_pairs if static else moving_pairs).append(pair)
+    if not static_pairs and moving_pairs:
+        # No pair stayed put: the largest one is the base (design: largest consistent set).
+        largest = max(moving_pairs, key=lambda p: len(start_groups[p[0]].indices))
+        moving_pairs.remove(largest)
+        static_pairs.append(largest)
+        warnings.append("no segment stayed put between the states; the largest one is taken as the "
+                        "static base (are the two states in one frame?)")
+    # Merge moving pairs that share a motion (over-segmented parts).
+    parent = list(range(len(moving_pairs)))
+
+    def find(k: int) -> int:
+        while parent[k] != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    for a in range(len(moving_pairs)):
+        for b in range(a + 1, len(moving_pairs)):
+            if _same_motion(start, end, start_groups, end_groups, moving_pairs[a], moving_pairs[b],
+                            radius, config, rng):
+                parent[find(a)] = find(b)
+    clusters: dict[int, list[int]] = {}
+    for k in range(len(moving_pairs)):
+        clusters.setdefault(find(k), []).append(k)
+    ordered = sorted(clusters.values(),
+                     key=lambda ks: -sum(len(start_groups[moving_pairs[k][0]].indices) for k in ks))
+    start_map: dict[int, int] = {}
+    end_map: dict[int, int] = {}
+    for i, j, _, _ in static_pairs:
+        for s in start_groups[i].segments:
+            start_map[s] = 0
+        for s in end_groups[j].segments:
+            end_map[s] = 0
+    parts = [PartSpec(id=0, role="static")]
+    motions, priors = {}, {}
+    for part_id, members in enumerate(ordered, start=1):
+        best = max(members, key=lambda k: moving_pairs[k][3] * len(start_groups[moving_pairs[k][0]].indices))
+        for k in members:
+            i, j, _, _ = moving_pairs[k]
+            for s in start_groups[i].segments:
+                start_map[s] = part_id
+            for s in end_groups[j].segments:
+                end_map[s] = part_id
+        transform = moving_pairs[best][2]
+        motions[part_id] = transform
+        angle, _ = _motion_size(transform)
+        if angle >= REVOLUTE_PRIOR_DEG:
+            priors[part_id] = "revolute"
+        elif angle <= PRISMATIC_PRIOR_DEG:
+            priors[part_id] = "prismatic"
+        else:
+            warnings.append(f"part {part_id}: rotation of {angle:.1f} deg is between "
+                            f"{PRISMATIC_PRIOR_DEG} and {REVOLUTE_PRIOR_DEG} deg: joint type is left to the fit")
+        parts.append(PartSpec(id=part_id, role="movable", parent=0))
+    if len(parts) == 1:
+        warnings.append("no part moved between the two states")
+    start_part = _points_to_parts(start_segments, start_map)
+    end_part = _points_to_parts(end_segments, end_map)
+    if motion_split:
+        # Pseudo-segment 0 is "stayed put" in both states.
+        start_part[start_segments == 0] = 0
+        end_part[end_segments == 0] = 0
+        start_map, end_map = {}, {}
+    return PartLabels(parts=parts, start_part=start_part, end_part=end_part,
+                      start_segment_to_part=start_map, end_segment_to_part=end_map,
+                      initial_motion=motions, type_prior=priors, warnings=warnings)
+
+
+def _points_to_parts(segments: np.ndarray, mapping: dict[int, int]) -> np.ndarray:
+    result = np.full(len(segments), -1, dtype=np.int64)
+    for segment, part in mapping.items():
+        result[segments == segment] = part
+    return result
+
+
+def _same_motion(start: LabelledCloud, end: LabelledCloud, start_groups: list[_Group],
+                 end_groups: list[_Group], pair_a: tuple, pair_b: tuple, radius: float,
+                 config: RuleLabelerConfig, rng: np.random.Generator) -> bool:
+    """Does either pair's motion carry the other pair's start points onto its end points?"""
+    for (ia, ja, ta, _), (ib, jb, _, _) in ((pair_a, pair_b), (pair_b, pair_a)):
+        source = start.points[_sample(start_groups[ib], config.max_points_per_segment, rng)]
+        target_tree = cKDTree(end.points[_sample(end_groups[jb], config.max_points_per_segment, rng)])
+        if _overlap(_apply(ta, source), target_tree, radius) >= config.same_motion_overlap:
+            return True
+    return False

@@ -1,0 +1,78 @@
+"""Mask-to-point label transfer through the pixel grid.
+
+Row-major pixel index ``k`` of an ``H x W`` image is pixel ``(k // W, k % W)``; a pointmap stores
+its points in that order, so the label of point ``k`` is ``mask.reshape(-1)[k]``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..types import Frame, LabelledCloud, Pointmap
+
+SEGMENT_STRIDE = 1 << 16  # segment id = frame_index * SEGMENT_STRIDE + mask id (masks are <= uint16)
+
+
+def mask_boundary(mask: np.ndarray) -> np.ndarray:
+    """(H, W) bool: pixels whose label differs from one of their 4-neighbours. O(H W)."""
+    boundary = np.zeros(mask.shape, dtype=bool)
+    boundary[:, 1:] |= mask[:, 1:] != mask[:, :-1]
+    boundary[:, :-1] |= mask[:, 1:] != mask[:, :-1]
+    boundary[1:, :] |= mask[1:, :] != mask[:-1, :]
+    boundary[:-1, :] |= mask[1:, :] != mask[:-1, :]
+    return boundary
+
+
+def segment_id(frame_index: int, mask_id: int) -> int:
+    """State-wide segment id of mask ``mask_id`` in frame ``frame_index``."""
+    return int(frame_index) * SEGMENT_STRIDE + int(mask_id)
+
+
+def build_labelled_cloud(state: str, frames: list[Frame], pointmaps: list[Pointmap],
+                         drop_mask_boundaries: bool = True) -> LabelledCloud:
+    """Concatenate the valid points of a state's frames and copy mask labels onto them.
+
+    Args:
+        state: "start" or "end".
+        frames: the state's frames (rgb (H, W, 3) uint8, optional mask (H, W) int64).
+        pointmaps: one per frame, same order; points (H*W, 3) float64 in the scene frame.
+        drop_mask_boundaries: label pixels on a mask boundary -1 (their depth may belong to either
+            side), keeping the points themselves.
+
+    Returns:
+        LabelledCloud with (N, 3) float64 points; ``segment`` is -1 for background (mask 0),
+        boundaries and frames without masks. O(total pixels).
+    """
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in
+                                          ("points", "colors", "segment", "frame", "pixel", "conf")}
+    sources: dict[int, tuple[int, int]] = {}
+    for frame, pointmap in zip(frames, pointmaps):
+        if (pointmap.height, pointmap.width) != frame.shape:
+            raise ValueError(f"{frame.rgb_path}: pointmap grid {pointmap.height}x{pointmap.width} "
+                             f"does not match the image {frame.shape[0]}x{frame.shape[1]}")
+        pixel = np.flatnonzero(pointmap.valid)
+        labels = np.full(pixel.shape, -1, dtype=np.int64)
+        if frame.mask is not None:
+            mask = frame.mask
+            if drop_mask_boundaries:
+                mask = np.where(mask_boundary(mask), 0, mask)
+            mask_ids = mask.reshape(-1)[pixel]
+            foreground = mask_ids > 0
+            labels[foreground] = frame.index * SEGMENT_STRIDE + mask_ids[foreground]
+            for mask_id in np.unique(mask_ids[foreground]):
+                sources[segment_id(frame.index, mask_id)] = (frame.index, int(mask_id))
+        parts["points"].append(pointmap.points[pixel])
+        parts["colors"].append(frame.rgb.reshape(-1, 3)[pixel].astype(np.float64) / 255.0)
+        parts["segment"].append(labels)
+        parts["frame"].append(np.full(pixel.shape, frame.index, dtype=np.int64))
+        parts["pixel"].append(pixel.astype(np.int64))
+        parts["conf"].append(pointmap.confidence[pixel])
+    return LabelledCloud(
+        state=state,
+        points=np.concatenate(parts["points"]).astype(np.float64),
+        colors=np.concatenate(parts["colors"]),
+        segment=np.concatenate(parts["segment"]),
+        frame_index=np.concatenate(parts["frame"]),
+        pixel_index=np.concatenate(parts["pixel"]),
+        confidence=np.concatenate(parts["conf"]),
+        segment_source=sources,
+    )

@@ -1,0 +1,249 @@
+"""The pipeline: scene folder -> lift -> label transfer -> align -> part labels -> joint fits.
+
+Each stage is a plain function over dataclasses; :func:`run` decides which stages a scene needs and
+records every stage's wall time and, when skipped, why.
+"""
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .labelers.base import PartLabeler
+from .lift.labels import build_labelled_cloud
+from .lift.rgbd import pointmap_from_depth
+from .types import (JOINT_TYPES, Articulation, LabelledCloud, PartLabels, PartResult, Scene,
+                    SceneError, StageRecord)
+
+MIN_PART_POINTS = 20
+
+
+@dataclass
+class RunOptions:
+    """Options of :func:`run`.
+
+    joint_type: "auto" (classify) or a type applied to every movable part.
+    reject_flying_pixels: drop depth-edge pixels when lifting.
+    use_masks: transfer the scene's masks onto the points (False: the labeler sees no segments).
+    seed: random seed for every sub-sampling step (results are deterministic for a seed).
+    """
+
+    joint_type: str = "auto"
+    reject_flying_pixels: bool = True
+    use_masks: bool = True
+    seed: int = 0
+
+
+class StageClock:
+    """Collects :class:`StageRecord` entries."""
+
+    def __init__(self) -> None:
+        self.records: list[StageRecord] = []
+
+    @contextmanager
+    def stage(self, name: str, why: str) -> Iterator[None]:
+        began = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.records.append(StageRecord(name, True, time.perf_counter() - began, why))
+
+    def skip(self, name: str, why: str) -> None:
+        self.records.append(StageRecord(name, False, 0.0, why))
+
+
+def run(scene: Scene | str | Path, labeler: PartLabeler | None = None,
+        options: RunOptions | None = None, **overrides) -> Articulation:
+    """Recover the articulation of the object in a scene.
+
+    Args:
+        scene: a scene folder (design section 2) or an already loaded :class:`Scene`.
+        labeler: the part labeler; default :class:`~sparseart.labelers.RuleBasedLabeler`.
+        options: :class:`RunOptions`; keyword ``overrides`` replace single fields
+            (e.g. ``run(path, joint_type="revolute")``).
+
+    Returns:
+        :class:`Articulation` with per-part joints in the scene frame (world frame for posed
+        scenes, else the OpenCV frame of ``start/rgb/000.png``), stage timings and warnings.
+
+    Raises:
+        SceneError: bad input, one line naming the file.
+    """
+    options = _options(options, overrides)
+    clock = StageClock()
+    if not isinstance(scene, Scene):
+        from .scene import load_scene
+
+        with clock.stage("read", "scene folder"):
+            scene = load_scene(scene)
+    warnings = list(scene.warnings)
+    posed = scene.posed
+    with clock.stage("lift", "depth + K given: unprojecting RGB-D (no reconstructor)"):
+        clouds = _lift_rgbd(scene, posed, options, warnings)
+    clock.skip("reconstruct", "depth given: the ONNX reconstructor is not needed")
+    start, end = clouds
+    if not options.use_masks:
+        for cloud in (start, end):
+            cloud.segment[:] = -1
+            cloud.segment_source.clear()
+    frame_kind = "world" if posed else "camera"
+    reference = ("cameras.json world frame" if posed
+                 else "OpenCV frame of start/rgb/" + scene.start[0].rgb_path.name)
+    return _label_and_fit(start, end, labeler, options, clock, warnings, scene=scene, aligned=posed,
+                          frame=(frame_kind, reference, "metres"))
+
+
+def run_clouds(start: LabelledCloud, end: LabelledCloud, labeler: PartLabeler | None = None,
+               options: RunOptions | None = None, aligned: bool = True, units: str = "metres",
+               **overrides) -> Articulation:
+    """Recover the articulation from already lifted clouds (e.g. a robot's own point clouds).
+
+    Args:
+        start, end: :class:`LabelledCloud` of each state; (N, 3) float64 points. With
+            ``aligned=True`` both are in one frame (the result's frame); otherwise the end cloud is
+            registered to the start cloud through the static part first.
+        labeler, options, overrides: as in :func:`run`.
+    """
+    options = _options(options, overrides)
+    clock = StageClock()
+    clock.skip("lift", "clouds given")
+    frame = ("world" if aligned else "camera", "frame of the given start cloud", units)
+    return _label_and_fit(start, end, labeler, options, clock, [], scene=None, aligned=aligned, frame=frame)
+
+
+def _options(options: RunOptions | None, overrides: dict) -> RunOptions:
+    options = options or RunOptions()
+    for key, value in overrides.items():
+        if not hasattr(options, key):
+            raise TypeError(f"unknown option {key!r}")
+        setattr(options, key, value)
+    if options.joint_type not in ("auto", *JOINT_TYPES):
+        raise ValueError(f"joint_type must be auto, revolute or prismatic, got {options.joint_type!r}")
+    return options
+
+
+def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabeler | None,
+                   options: RunOptions, clock: StageClock, warnings: list[str], scene: Scene | None,
+                   aligned: bool, frame: tuple[str, str, str]) -> Articulation:
+    if aligned:
+        clock.skip("align", "cameras given for every image: both states are in one frame")
+    else:
+        with clock.stage("align", "unposed: end state registered to start through the static part"):
+            end = _coarse_align(start, end, warnings)
+    if labeler is None:
+        from .labelers.rules import RuleBasedLabeler
+
+        labeler = RuleBasedLabeler()
+    with clock.stage("label", f"part labeler: {labeler.name}"):
+        labels = labeler.label(start, end, scene, aligned=True)
+    warnings.extend(labels.warnings)
+    if not aligned:
+        with clock.stage("align_static", "refining the alignment on the static part"):
+            end = _refine_alignment_on_static(start, end, labels, warnings)
+    known_type = options.joint_type != "auto" or all(p.joint_type for p in labels.movable)
+    with clock.stage("fit", "joint type given: classification skipped" if known_type
+                     else "fitting revolute and prismatic, choosing by penalised residual"):
+        parts = _fit_parts(start, end, labels, options, warnings)
+    clock.skip("refine", "refinement not requested (--refine)")
+    return Articulation(frame_kind=frame[0], frame_reference=frame[1], units=frame[2],
+                        parts=parts, stages=clock.records, warnings=warnings,
+                        start_cloud=start, end_cloud=end, labels=labels)
+
+
+def _lift_rgbd(scene: Scene, posed: bool, options: RunOptions,
+               warnings: list[str]) -> tuple[LabelledCloud, LabelledCloud]:
+    clouds = []
+    for state in ("start", "end"):
+        frames = scene.frames(state)
+        if not posed and len(frames) > 1:
+            warnings.append(f"unposed scene: only {state}/rgb/{frames[0].rgb_path.name} is used; the "
+                            f"other {len(frames) - 1} view(s) need cam_to_world to be placed")
+            frames = frames[:1]
+        pointmaps = [pointmap_from_depth(f, f.camera.cam_to_world if posed else np.eye(4),
+                                         options.reject_flying_pixels) for f in frames]
+        cloud = build_labelled_cloud(state, frames, pointmaps)
+        if len(cloud) < MIN_PART_POINTS:
+            raise SceneError(f"{scene.root / state}: only {len(cloud)} valid depth points after "
+                             f"removing invalid and flying pixels")
+        clouds.append(cloud)
+    return clouds[0], clouds[1]
+
+
+def _transformed(cloud: LabelledCloud, transform: np.ndarray) -> LabelledCloud:
+    moved = cloud.subset(np.arange(len(cloud)))
+    moved.points = cloud.points @ transform[:3, :3].T + transform[:3, 3]
+    return moved
+
+
+def _coarse_align(start: LabelledCloud, end: LabelledCloud, warnings: list[str]) -> LabelledCloud:
+    """Unposed single views: register the whole end cloud to the start cloud from the identity
+    (a still camera) with a robust ICP that locks onto the dominant static structure."""
+    from .joints.register import register_rigid
+
+    rng = np.random.default_rng(0)
+    source = end.points[rng.choice(len(end), size=min(len(end), 5000), replace=False)]
+    target = start.points[rng.choice(len(start), size=min(len(start), 5000), replace=False)]
+    registration = register_rigid(source, target, init=np.eye(4))
+    if registration.inlier_fraction < 0.3:
+        warnings.append(f"unposed alignment is weak: only {registration.inlier_fraction:.0%} of the end "
+                        f"points agree with the start view after registration")
+    return _transformed(end, registration.transform)
+
+
+def _refine_alignment_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabels,
+                                warnings: list[str]) -> LabelledCloud:
+    from .joints.register import register_rigid
+
+    start_static = start.points[labels.start_part == 0]
+    end_static = end.points[labels.end_part == 0]
+    if len(start_static) < MIN_PART_POINTS or len(end_static) < MIN_PART_POINTS:
+        warnings.append("static part too small to refine the unposed alignment")
+        return end
+    rng = np.random.default_rng(1)
+    source = end_static[rng.choice(len(end_static), size=min(len(end_static), 5000), replace=False)]
+    target = start_static[rng.choice(len(start_static), size=min(len(start_static), 5000), replace=False)]
+    registration = register_rigid(source, target, init=np.eye(4))
+    return _transformed(end, registration.transform)
+
+
+def _fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, options: RunOptions,
+               warnings: list[str]) -> list[PartResult]:
+    from .joints.fit import fit_joint
+
+    object_centre = np.median(start.points, axis=0)
+    results = []
+    for spec in labels.parts:
+        start_mask = labels.start_part == spec.id
+        end_mask = labels.end_part == spec.id
+        n_points = int(start_mask.sum() + end_mask.sum())
+        result = PartResult(spec=spec, n_points=n_points)
+        results.append(result)
+        if spec.role != "movable":
+            continue
+        if start_mask.sum() < MIN_PART_POINTS or end_mask.sum() < MIN_PART_POINTS:
+            warnings.append(f"part {spec.id}: too few points ({int(start_mask.sum())} at start, "
+                            f"{int(end_mask.sum())} at end) to fit a joint")
+            continue
+        joint_type = options.joint_type if options.joint_type != "auto" else (spec.joint_type or "auto")
+        try:
+            joint = fit_joint(start.points[start_mask], end.points[end_mask], joint_type=joint_type,
+                              initial_transform=labels.initial_motion.get(spec.id),
+                              start_colors=start.colors[start_mask], end_colors=end.colors[end_mask])
+        except ValueError as error:
+            warnings.append(f"part {spec.id}: joint fit failed: {error}")
+            continue
+        if joint.type == "revolute":
+            joint.origin = _point_on_line_nearest(joint.origin, joint.axis, object_centre)
+        warnings.extend(f"part {spec.id}: {w}" for w in joint.warnings)
+        result.joint = joint
+    return results
+
+
+def _point_on_line_nearest(origin: np.ndarray, axis: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """The point of the line ``origin + s * axis`` nearest ``point``; all (3,) float64."""
+    axis = axis / np.linalg.norm(axis)
+    return origin + float(np.dot(point - origin, axis)) * axis
