@@ -1,0 +1,79 @@
+"""RGB-D lifting and mask-to-point label transfer."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from sparseart.lift.labels import SEGMENT_STRIDE, build_labelled_cloud, mask_boundary
+from sparseart.lift.rgbd import flying_pixel_mask, pointmap_from_depth
+from sparseart.types import Camera, Frame
+
+
+def _frame(depth: np.ndarray, K: np.ndarray, cam_to_world=None, mask=None, index=0) -> Frame:
+    h, w = depth.shape
+    rgb = np.zeros((h, w, 3), np.uint8)
+    rgb[..., 0] = np.arange(w, dtype=np.uint8)[None, :]
+    rgb[..., 1] = np.arange(h, dtype=np.uint8)[:, None]
+    return Frame(state="start", index=index, rgb_path=Path(f"rgb/{index:03d}.png"), rgb=rgb, depth=depth,
+                 mask=mask, camera=Camera(K=K, width=w, height=h, cam_to_world=cam_to_world))
+
+
+K = np.array([[50.0, 0, 16.5], [0, 60.0, 11.0], [0, 0, 1]])
+
+
+def test_unprojection_matches_pinhole_and_pose() -> None:
+    rng = np.random.default_rng(0)
+    depth = 1.0 + 0.001 * rng.random((24, 32))  # smooth enough: no flying pixels
+    rotation = np.array([[0, -1, 0], [1, 0, 0], [0, 0, 1]], float)
+    cam_to_world = np.eye(4)
+    cam_to_world[:3, :3], cam_to_world[:3, 3] = rotation, [1.0, 2.0, 3.0]
+    pointmap = pointmap_from_depth(_frame(depth, K, cam_to_world), reject_flying_pixels=False)
+    k = 5 * 32 + 7  # row 5, column 7
+    camera_point = np.array([(7 - 16.5) / 50.0, (5 - 11.0) / 60.0, 1.0]) * depth[5, 7]
+    np.testing.assert_allclose(pointmap.points[k], rotation @ camera_point + [1, 2, 3], atol=1e-12)
+    # projecting back with K gives the pixel
+    back = np.linalg.solve(rotation, pointmap.points[k] - [1, 2, 3])
+    pixel = K @ (back / back[2])
+    np.testing.assert_allclose(pixel[:2], [7, 5], atol=1e-9)
+    assert pointmap.points.dtype == np.float64 and pointmap.valid.all()
+
+
+def test_invalid_and_flying_pixels() -> None:
+    depth = np.ones((10, 12))
+    depth[:, 6:] = 2.0  # a depth edge between columns 5 and 6
+    depth[0, 0] = 0.0
+    flags = flying_pixel_mask(depth)
+    assert flags[4, 5] and flags[4, 6] and not flags[4, 2] and not flags[4, 9]
+    pointmap = pointmap_from_depth(_frame(depth, K))
+    assert not pointmap.valid[0] and np.isnan(pointmap.points[0]).all()
+    assert not pointmap.valid[4 * 12 + 5] and pointmap.valid[4 * 12 + 2]
+
+
+def test_label_transfer_row_major() -> None:
+    depth = np.ones((6, 8))
+    mask = np.zeros((6, 8), np.int64)
+    mask[1:5, 1:4] = 3
+    mask[1:5, 4:7] = 9
+    frame = _frame(depth, K, np.eye(4), mask=mask, index=1)
+    pointmap = pointmap_from_depth(frame, reject_flying_pixels=False)
+    cloud = build_labelled_cloud("start", [frame], [pointmap], drop_mask_boundaries=False)
+    rows, cols = cloud.pixel_index // 8, cloud.pixel_index % 8
+    np.testing.assert_array_equal(cloud.colors[:, 0] * 255, cols)
+    np.testing.assert_array_equal(cloud.colors[:, 1] * 255, rows)
+    expected = np.where(mask[rows, cols] > 0, SEGMENT_STRIDE + mask[rows, cols], -1)
+    np.testing.assert_array_equal(cloud.segment, expected)
+    assert cloud.segment_source[SEGMENT_STRIDE + 9] == (1, 9)
+    cleaned = build_labelled_cloud("start", [frame], [pointmap], drop_mask_boundaries=True)
+    boundary = mask_boundary(mask)[rows, cols]
+    assert np.all(cleaned.segment[boundary] == -1)
+    assert np.all(cleaned.segment[~boundary] == expected[~boundary])
+
+
+def test_segments_of_two_frames_never_collide() -> None:
+    depth = np.ones((4, 4))
+    mask = np.ones((4, 4), np.int64)
+    frames = [_frame(depth, K, np.eye(4), mask=mask, index=i) for i in range(2)]
+    pointmaps = [pointmap_from_depth(f, reject_flying_pixels=False) for f in frames]
+    cloud = build_labelled_cloud("start", frames, pointmaps, drop_mask_boundaries=False)
+    assert len(np.unique(cloud.segment)) == 2
