@@ -2,7 +2,8 @@
 
 Used by the joint fitter (initial motion, putative matches) and by the part labeler (does a
 segment move rigidly between the states?). Hypotheses: identity, centroid shift, centroid + PCA
-frame alignment with the 4 proper sign flips, and open3d FPFH + RANSAC; each is refined by
+frame alignment with the 4 proper sign flips, and open3d FPFH + RANSAC (only when the
+cheap hypotheses leave the inlier fraction below ``fpfh_below``); each is refined by
 open3d point-to-plane ICP with a Tukey robust kernel (coarse then fine). The best hypothesis has
 the highest symmetric inlier fraction; among near-ties the smallest rotation wins (real joints
 rarely exceed 180 deg and symmetric parts such as drawer fronts create flip ambiguities).
@@ -96,7 +97,7 @@ def _fpfh_hypothesis(source_cloud, target_cloud, voxel: float, seed: int) -> np.
             source_cloud, target_cloud, source_feature, target_feature, True, 1.5 * voxel,
             reg.TransformationEstimationPointToPoint(False), 3,
             [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
-            reg.RANSACConvergenceCriteria(20000, 0.999))
+            reg.RANSACConvergenceCriteria(5000, 0.999))
     except RuntimeError:
         return None
     transform = np.asarray(result.transformation, dtype=np.float64)
@@ -134,6 +135,14 @@ def _score(source: np.ndarray, target: np.ndarray, target_tree: cKDTree, transfo
     return float(fraction), rmse
 
 
+def _refine(name, start, source_cloud, target_cloud, schedule, source_sub, target_sub, target_tree,
+            inlier_distance) -> dict:
+    refined = _icp(source_cloud, target_cloud, start, schedule)
+    fraction, rmse = _score(source_sub, target_sub, target_tree, refined, inlier_distance)
+    return {"name": name, "transform": refined, "inlier_fraction": fraction, "rmse": rmse,
+            "angle_deg": float(np.degrees(rotation_angle(refined[:3, :3])))}
+
+
 def register_rigid(
     source: np.ndarray,
     target: np.ndarray,
@@ -143,6 +152,7 @@ def register_rigid(
     max_points: int = 2000,
     inlier_factor: float = 3.0,
     use_fpfh: bool = True,
+    fpfh_below: float = 0.7,
     tie_tolerance: float = 0.03,
     seed: int = 0,
 ) -> RigidRegistration:
@@ -177,24 +187,23 @@ def register_rigid(
     target_tree = cKDTree(target_sub)
     source_cloud = _o3d_cloud(source_sub)
     target_cloud = _o3d_cloud(target_sub, radius=4.0 * resolution)
+    coarse = max(0.3, 10.0 * resolution)
+    schedule = (coarse, max(3.0 * inlier_distance, coarse / 4.0), inlier_distance)
     if init is not None:
         hypotheses = [("init", normalise @ np.asarray(init, dtype=np.float64) @ denormalise)]
     else:
         hypotheses = _hypotheses(source_sub, target_sub)
-        if use_fpfh and min(len(source_sub), len(target_sub)) >= 30:
-            source_cloud.estimate_normals(__import__("open3d").geometry.KDTreeSearchParamHybrid(
-                radius=4.0 * resolution, max_nn=30))
-            fpfh = _fpfh_hypothesis(source_cloud, target_cloud, 2.0 * resolution, seed)
-            if fpfh is not None:
-                hypotheses.append(("fpfh", fpfh))
-    coarse = max(0.3, 10.0 * resolution)
-    schedule = (coarse, max(3.0 * inlier_distance, coarse / 4.0), inlier_distance)
-    results = []
-    for name, start in hypotheses:
-        refined = _icp(source_cloud, target_cloud, start, schedule)
-        fraction, rmse = _score(source_sub, target_sub, target_tree, refined, inlier_distance)
-        results.append({"name": name, "transform": refined, "inlier_fraction": fraction, "rmse": rmse,
-                        "angle_deg": float(np.degrees(rotation_angle(refined[:3, :3])))})
+    results = [_refine(name, start, source_cloud, target_cloud, schedule, source_sub, target_sub, target_tree,
+                       inlier_distance) for name, start in hypotheses]
+    if init is None and use_fpfh and max(r["inlier_fraction"] for r in results) < fpfh_below \
+            and min(len(source_sub), len(target_sub)) >= 30:
+        # The cheap hypotheses did not explain the data: try features (about 0.2-1 s).
+        source_cloud.estimate_normals(__import__("open3d").geometry.KDTreeSearchParamHybrid(
+            radius=4.0 * resolution, max_nn=30))
+        fpfh = _fpfh_hypothesis(source_cloud, target_cloud, 2.0 * resolution, seed)
+        if fpfh is not None:
+            results.append(_refine("fpfh", fpfh, source_cloud, target_cloud, schedule, source_sub, target_sub,
+                                   target_tree, inlier_distance))
     best_fraction = max(r["inlier_fraction"] for r in results)
     best_rmse = min(r["rmse"] for r in results if r["inlier_fraction"] >= best_fraction - tie_tolerance)
     ties = [r for r in results if r["inlier_fraction"] >= best_fraction - tie_tolerance

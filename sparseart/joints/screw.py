@@ -211,6 +211,8 @@ def screw_from_transform(
     axis = rotvec / angle
     if axis_hint is not None and axis @ np.asarray(axis_hint, dtype=np.float64) < 0:
         axis, angle = -axis, -angle
+        if angle <= -np.pi + 1e-12:  # (-a, -pi) is the same rotation as (-a, pi)
+            angle = np.pi
     slide = float(translation @ axis)
     perpendicular = translation - slide * axis
     # Singular values of (I - R) are 0, 2 sin(angle/2), 2 sin(angle/2): cut the zero one.

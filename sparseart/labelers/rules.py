@@ -37,10 +37,11 @@ class RuleLabelerConfig:
     inlier_radius_spacings: float = 3.0
     min_segment_points: int = 30
     min_segment_share: float = 0.002
-    merge_overlap: float = 0.5
+    merge_overlap: float = 0.2
     match_min_score: float = 0.3
     same_motion_overlap: float = 0.6
     max_points_per_segment: int = 1500
+    pair_registration_points: int = 500
     motion_radius_spacings: float = 4.0
     seed: int = 0
 
@@ -204,8 +205,8 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
             if size_ratio > 20 or size_ratio < 0.05:
                 continue
             target = end.points[e_idx]
-            registration = register_rigid(source, target, source_colors=start.colors[s_idx],
-                                          target_colors=end.colors[e_idx])
+            registration = register_rigid(source, target, max_points=config.pair_registration_points,
+                                          use_fpfh=False, seed=config.seed)
             moved = _apply(registration.transform, source)
             forward = _overlap(moved, end_trees[j], radius)
             backward = _overlap(target, cKDTree(moved), radius)
@@ -213,10 +214,16 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
             scores[i, j] = 0.5 * (forward + backward) * colour
             transforms[(i, j)] = registration.transform
     rows, cols = linear_sum_assignment(-scores)
-    pairs = []
-    for i, j in zip(rows, cols):
-        if scores[i, j] >= config.match_min_score:
-            pairs.append((int(i), int(j), transforms[(i, j)], float(scores[i, j])))
+    chosen = {(int(i), int(j)) for i, j in zip(rows, cols) if scores[i, j] >= config.match_min_score}
+    # Groups left over by the one-to-one matching (a surface seen in two views that did not merge,
+    # an over-segmented part) join their best partner; shared motions are merged later.
+    for i in range(len(start_groups)):
+        if all(p[0] != i for p in chosen) and scores[i].max() >= config.match_min_score:
+            chosen.add((i, int(np.argmax(scores[i]))))
+    for j in range(len(end_groups)):
+        if all(p[1] != j for p in chosen) and scores[:, j].max() >= config.match_min_score:
+            chosen.add((int(np.argmax(scores[:, j])), j))
+    pairs = [(i, j, transforms[(i, j)], float(scores[i, j])) for i, j in sorted(chosen)]
     matched_start = {p[0] for p in pairs}
     matched_end = {p[1] for p in pairs}
     unmatched = ([f"start group of {len(g.indices)} points" for k, g in enumerate(start_groups)
@@ -294,6 +301,12 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
             end_map[s] = 0
     parts = [PartSpec(id=0, role="static")]
     motions, priors = {}, {}
+    def start_part_indices(members: list[int]) -> np.ndarray:
+        return np.unique(np.concatenate([start_groups[moving_pairs[k][0]].indices for k in members]))
+
+    def end_part_indices(members: list[int]) -> np.ndarray:
+        return np.unique(np.concatenate([end_groups[moving_pairs[k][1]].indices for k in members]))
+
     for part_id, members in enumerate(ordered, start=1):
         best = max(members, key=lambda k: moving_pairs[k][3] * len(start_groups[moving_pairs[k][0]].indices))
         for k in members:
@@ -302,7 +315,8 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
                 start_map[s] = part_id
             for s in end_groups[j].segments:
                 end_map[s] = part_id
-        transform = moving_pairs[best][2]
+        transform = _polish_motion(start, end, start_part_indices(members), end_part_indices(members),
+                                   moving_pairs[best][2], config)
         motions[part_id] = transform
         angle, _ = _motion_size(transform)
         if angle >= REVOLUTE_PRIOR_DEG:
@@ -325,6 +339,17 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
     return PartLabels(parts=parts, start_part=start_part, end_part=end_part,
                       start_segment_to_part=start_map, end_segment_to_part=end_map,
                       initial_motion=motions, type_prior=priors, warnings=warnings)
+
+
+def _polish_motion(start: LabelledCloud, end: LabelledCloud, start_indices: np.ndarray,
+                   end_indices: np.ndarray, transform: np.ndarray, config: RuleLabelerConfig) -> np.ndarray:
+    """Refine a part's start->end motion on all of its points (with colour), from ``transform``."""
+    from ..joints.register import register_rigid
+
+    registration = register_rigid(start.points[start_indices], end.points[end_indices],
+                                  source_colors=start.colors[start_indices],
+                                  target_colors=end.colors[end_indices], init=transform, seed=config.seed)
+    return registration.transform
 
 
 def _points_to_parts(segments: np.ndarray, mapping: dict[int, int]) -> np.ndarray:
