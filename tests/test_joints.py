@@ -220,10 +220,17 @@ def test_fit_prismatic_drawer(seed):
 
 
 def test_auto_five_degree_door_is_revolute():
+    """A 5 deg turn of a ~1 unit door with 1 mm noise must be revolute, not prismatic.
+
+    The axis direction of so small a turn of a flat panel is weakly observable (in-plane tilt
+    is constrained only by the edges), so it is checked against the reported sigma.
+    """
     angle = np.radians(5)
     start, end = make_part("door", transform_from_revolute(DOOR_AXIS, DOOR_ORIGIN, angle), seed=11)
     estimate = fit_joint(start, end)
-    check_revolute(estimate, DOOR_AXIS, DOOR_ORIGIN, angle)
+    assert estimate.type == "revolute", estimate.diagnostics["type_reason"]
+    assert abs(estimate.angle - angle) < np.radians(0.5)
+    assert axis_error_deg(estimate.axis, DOOR_AXIS) < max(3 * estimate.uncertainty["axis_deg"], 1.0)
     assert "bic_revolute" in estimate.diagnostics and "bic_prismatic" in estimate.diagnostics
 
 
@@ -245,18 +252,25 @@ def test_select_joint_type_rules():
 
 
 def test_uncertainty_coverage():
-    """True errors within 3 sigma in most noisy trials (revolute angle/axis, prismatic distance)."""
+    """True errors within 3 sigma in most noisy trials (revolute angle/axis/origin, prismatic)."""
     covered, trials = 0, 0
-    for seed in range(6):
+    for seed in range(4):
         angle = np.radians(30)
         start, end = make_part("door", transform_from_revolute(DOOR_AXIS, DOOR_ORIGIN, angle), count=2000,
                                noise=3e-3, seed=100 + seed)
         estimate = fit_joint(start, end, joint_type="revolute")
         sigma = estimate.uncertainty
-        checks = [abs(estimate.angle - angle) <= 3 * sigma["angle"] + 1e-12,
-                  axis_error_deg(estimate.axis, DOOR_AXIS) <= 3 * sigma["axis_deg"] + 1e-12,
-                  line_distance(estimate.origin, estimate.axis, DOOR_ORIGIN, DOOR_AXIS) <= 3 * sigma["origin"] * 1.5]
-        covered += sum(checks)
-        trials += len(checks)
         assert all(np.isfinite(v) and v > 0 for v in sigma.values())
-    assert covered >= 0.8 * trials
+        covered += sum([abs(estimate.angle - angle) <= 3 * sigma["angle"],
+                        axis_error_deg(estimate.axis, DOOR_AXIS) <= 3 * sigma["axis_deg"],
+                        line_distance(estimate.origin, estimate.axis, DOOR_ORIGIN, DOOR_AXIS) <= 3 * sigma["origin"]])
+        trials += 3
+        axis, distance = np.array([0.0, 0.0, 1.0]), 0.2
+        start, end = make_part("drawer", transform_from_prismatic(axis, distance), count=2000, noise=3e-3,
+                               seed=200 + seed)
+        estimate = fit_joint(start, end, joint_type="prismatic")
+        sigma = estimate.uncertainty
+        covered += sum([abs(estimate.distance - distance) <= 3 * sigma["distance"],
+                        axis_error_deg(estimate.axis, axis) <= 3 * sigma["axis_deg"]])
+        trials += 2
+    assert covered >= 0.8 * trials, f"{covered}/{trials} within 3 sigma"

@@ -193,7 +193,14 @@ def register_rigid(
         hypotheses = [("init", normalise @ np.asarray(init, dtype=np.float64) @ denormalise)]
     else:
         hypotheses = _hypotheses(source_sub, target_sub)
-    results = [_refine(name, start, source_cloud, target_cloud, schedule, source_sub, target_sub, target_tree,
+    if len(hypotheses) > 1:  # screen the hypotheses cheaply on a coarser subsample, refine the best 2
+        coarse_pick = _subsample(source_sub, max(max_points // 3, 50), rng)
+        coarse_cloud = _o3d_cloud(source_sub[coarse_pick])
+        screened = [_refine(name, start, coarse_cloud, target_cloud, schedule[:2], source_sub[coarse_pick],
+                            target_sub, target_tree, schedule[1]) for name, start in hypotheses]
+        screened.sort(key=lambda r: (-round(r["inlier_fraction"], 2), r["angle_deg"]))
+        hypotheses = [(r["name"], r["transform"]) for r in screened[:2]]
+    results = [_refine(name, start, source_cloud, target_cloud, schedule[1:], source_sub, target_sub, target_tree,
                        inlier_distance) for name, start in hypotheses]
     if init is None and use_fpfh and max(r["inlier_fraction"] for r in results) < fpfh_below \
             and min(len(source_sub), len(target_sub)) >= 30:

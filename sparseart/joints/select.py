@@ -2,7 +2,7 @@
 
 Rule: the rigid motion of a part carries its own rotation angle whatever the pivot. The revolute
 model is chosen when (a) its fitted angle is *significant* -- larger than ``z`` standard
-deviations and than a floor ``min_angle`` -- and (b) it wins on BIC computed with an effective
+deviations and than a floor ``min_angle`` -- and (b) it wins on BIC by a margin computed with an effective
 sample count (dense surface residuals are correlated). A pure translation with noise gives an
 insignificant angle (the revolute model mimics it with a far pivot and a tiny angle), so it is
 prismatic; a small real rotation (5 deg of a door with 1 mm noise) gives an angle many sigmas
@@ -56,13 +56,15 @@ def select_joint_type(
     angle_sigma: float,
     z: float = 4.0,
     min_angle: float = np.radians(0.1),
+    bic_margin: float = 10.0,
 ) -> TypeDecision:
     """Choose "revolute" or "prismatic" from the two fits of the same matched residuals.
 
     rss_*: residual sums of squares of the same residual set under each model (same units).
     count: effective number of independent residuals. angle / angle_sigma: fitted revolute angle
     and its standard deviation (rad). Revolute iff the angle is significant (see
-    ``angle_is_significant``) and ``BIC_revolute < BIC_prismatic``.
+    ``angle_is_significant``) and ``BIC_revolute < BIC_prismatic - bic_margin`` ("strong" evidence
+    on the Kass-Raftery scale: the extra pivot parameters must buy a clearly better fit).
     """
     bic_revolute = bic(rss_revolute, count, PARAMETER_COUNT["revolute"])
     bic_prismatic = bic(rss_prismatic, count, PARAMETER_COUNT["prismatic"])
@@ -70,7 +72,7 @@ def select_joint_type(
     if not significant:
         choice, reason = "prismatic", (f"rotation {np.degrees(abs(angle)):.3g} deg is not significant "
                                        f"(sigma {np.degrees(angle_sigma):.2g} deg)")
-    elif bic_revolute < bic_prismatic:
+    elif bic_revolute < bic_prismatic - bic_margin:
         choice, reason = "revolute", f"significant rotation and BIC lower by {bic_prismatic - bic_revolute:.3g}"
     else:
         choice, reason = "prismatic", f"BIC prefers prismatic by {bic_revolute - bic_prismatic:.3g}"

@@ -28,6 +28,7 @@ STATIC_ANGLE_DEG = 1.0          # a matched pair moving less than this and ...
 STATIC_SHIFT_RADII = 1.5        # ... less than this many inlier radii is static
 REVOLUTE_PRIOR_DEG = 10.0       # rotation above this: revolute prior
 PRISMATIC_PRIOR_DEG = 2.0       # rotation below this: prismatic prior (in between: no prior)
+IDENTITY_PREFERENCE = 0.05      # a motion must beat "stayed put" by this overlap share to be taken
 
 
 @dataclass
@@ -195,7 +196,10 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
     rng = np.random.default_rng(config.seed + 1)
     start_samples = [_sample(g, config.max_points_per_segment, rng) for g in start_groups]
     end_samples = [_sample(g, config.max_points_per_segment, rng) for g in end_groups]
-    end_trees = [cKDTree(end.points[s]) for s in end_samples]
+    # Overlaps are measured against every point of a group (a sub-sample would be too sparse for
+    # the inlier radius); the backward direction maps end samples back into the start tree.
+    start_trees = [cKDTree(start.points[g.indices]) for g in start_groups]
+    end_trees = [cKDTree(end.points[g.indices]) for g in end_groups]
     scores = np.zeros((len(start_groups), len(end_groups)))
     transforms: dict[tuple[int, int], np.ndarray] = {}
     for i, s_idx in enumerate(start_samples):
@@ -205,14 +209,18 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
             if size_ratio > 20 or size_ratio < 0.05:
                 continue
             target = end.points[e_idx]
+            # "Stayed put" is judged first and preferred on a near-tie: a registration on few points
+            # can slide a surface along itself and call a static segment moving.
+            trees = (start_trees[i], end_trees[j])
+            colours = (start.colors[s_idx], end.colors[end_groups[j].indices])
+            best_score, best_transform = _pair_score(np.eye(4), source, target, trees, colours, radius), np.eye(4)
             registration = register_rigid(source, target, max_points=config.pair_registration_points,
                                           use_fpfh=False, seed=config.seed)
-            moved = _apply(registration.transform, source)
-            forward = _overlap(moved, end_trees[j], radius)
-            backward = _overlap(target, cKDTree(moved), radius)
-            colour = _colour_agreement(moved, start.colors[s_idx], target, end.colors[e_idx], radius)
-            scores[i, j] = 0.5 * (forward + backward) * colour
-            transforms[(i, j)] = registration.transform
+            score = _pair_score(registration.transform, source, target, trees, colours, radius)
+            if score > best_score + IDENTITY_PREFERENCE:
+                best_score, best_transform = score, registration.transform
+            scores[i, j] = best_score
+            transforms[(i, j)] = best_transform
     rows, cols = linear_sum_assignment(-scores)
     chosen = {(int(i), int(j)) for i, j in zip(rows, cols) if scores[i, j] >= config.match_min_score}
     # Groups left over by the one-to-one matching (a surface seen in two views that did not merge,
@@ -236,15 +244,28 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
     return pairs
 
 
-def _colour_agreement(moved: np.ndarray, moved_colors: np.ndarray, target: np.ndarray,
-                      target_colors: np.ndarray, radius: float) -> float:
-    """1 for identical colours of nearest neighbours, falling towards 0.5 for unrelated ones."""
-    distance, nearest = cKDTree(target).query(moved, k=1)
+def _pair_score(transform: np.ndarray, source: np.ndarray, target: np.ndarray,
+                trees: tuple[cKDTree, cKDTree], colours: tuple[np.ndarray, np.ndarray], radius: float) -> float:
+    """Symmetric overlap of a start group moved by ``transform`` and an end group, times colour
+    agreement; in [0, 1].
+
+    source / target: (S, 3) samples of the start / end group; trees: KD-trees over ALL points of
+    the start / end group; colours: (S, 3) colours of the source samples and (M, 3) colours of all
+    end-group points (the end tree's order). O(S log M).
+    """
+    start_tree, end_tree = trees
+    moved = _apply(transform, source)
+    distance, nearest = end_tree.query(moved, k=1)
+    forward = float(np.mean(distance < radius))
+    inverse = np.linalg.inv(transform)
+    backward = _overlap(_apply(inverse, target), start_tree, radius)
     close = distance < radius
-    if not np.any(close):
-        return 0.5
-    difference = np.abs(moved_colors[close] - target_colors[nearest[close]]).mean()
-    return float(1.0 - 0.5 * min(1.0, difference / 0.25))
+    if np.any(close):
+        difference = np.abs(colours[0][close] - colours[1][nearest[close]]).mean()
+        colour = 1.0 - 0.5 * min(1.0, difference / 0.25)
+    else:
+        colour = 0.5
+    return 0.5 * (forward + backward) * colour
 
 
 def _motion_size(transform: np.ndarray) -> tuple[float, float]:
@@ -365,7 +386,7 @@ def _same_motion(start: LabelledCloud, end: LabelledCloud, start_groups: list[_G
     """Does either pair's motion carry the other pair's start points onto its end points?"""
     for (ia, ja, ta, _), (ib, jb, _, _) in ((pair_a, pair_b), (pair_b, pair_a)):
         source = start.points[_sample(start_groups[ib], config.max_points_per_segment, rng)]
-        target_tree = cKDTree(end.points[_sample(end_groups[jb], config.max_points_per_segment, rng)])
+        target_tree = cKDTree(end.points[end_groups[jb].indices])
         if _overlap(_apply(ta, source), target_tree, radius) >= config.same_motion_overlap:
             return True
     return False
