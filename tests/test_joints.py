@@ -54,7 +54,7 @@ def sample_shape(shape: str, count: int, rng: np.random.Generator) -> tuple[np.n
     return points, normals
 
 
-def make_part(shape: str, transform: np.ndarray, count: int = 3000, noise: float = 1e-3, seed: int = 0,
+def make_part(shape: str, transform: np.ndarray, count: int = 2000, noise: float = 1e-3, seed: int = 0,
               partial: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Start and end observations of a part moved by ``transform`` (4, 4); independent samples."""
     rng = np.random.default_rng(seed)

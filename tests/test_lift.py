@@ -41,13 +41,18 @@ def test_unprojection_matches_pinhole_and_pose() -> None:
 
 def test_invalid_and_flying_pixels() -> None:
     depth = np.ones((10, 12))
-    depth[:, 6:] = 2.0  # a depth edge between columns 5 and 6
+    depth[:, 6:] = 2.0  # a clean depth edge between columns 5 and 6: both sides are kept
     depth[0, 0] = 0.0
+    depth[5, 3] = 1.5  # an isolated flying pixel
+    depth[2:8, 9] = 1.4  # a 1-pixel line interpolated between surfaces
+    depth[2:8, 1:3] = 0.7  # a 2-pixel-wide structure (a wire, a handle) in front: kept
     flags = flying_pixel_mask(depth)
-    assert flags[4, 5] and flags[4, 6] and not flags[4, 2] and not flags[4, 9]
+    assert not flags[4, 5] and not flags[4, 6] and not flags[4, 10]
+    assert flags[5, 3] and flags[4, 9]
+    assert not flags[4, 1] and not flags[4, 2]
     pointmap = pointmap_from_depth(_frame(depth, K))
     assert not pointmap.valid[0] and np.isnan(pointmap.points[0]).all()
-    assert not pointmap.valid[4 * 12 + 5] and pointmap.valid[4 * 12 + 2]
+    assert not pointmap.valid[5 * 12 + 3] and pointmap.valid[4 * 12 + 5]
 
 
 def test_label_transfer_row_major() -> None:
@@ -65,7 +70,7 @@ def test_label_transfer_row_major() -> None:
     np.testing.assert_array_equal(cloud.segment, expected)
     assert cloud.segment_source[SEGMENT_STRIDE + 9] == (1, 9)
     cleaned = build_labelled_cloud("start", [frame], [pointmap], drop_mask_boundaries=True)
-    boundary = mask_boundary(mask)[rows, cols]
+    boundary = mask_boundary(mask, depth)[rows, cols]
     assert np.all(cleaned.segment[boundary] == -1)
     assert np.all(cleaned.segment[~boundary] == expected[~boundary])
 
@@ -77,3 +82,14 @@ def test_segments_of_two_frames_never_collide() -> None:
     pointmaps = [pointmap_from_depth(f, reject_flying_pixels=False) for f in frames]
     cloud = build_labelled_cloud("start", frames, pointmaps, drop_mask_boundaries=False)
     assert len(np.unique(cloud.segment)) == 2
+
+
+def test_mask_boundary_ignores_depth_edges() -> None:
+    mask = np.zeros((6, 6), np.int64)
+    mask[:, 3:] = 2
+    mask[:, :3] = 1
+    flat = np.ones((6, 6))
+    stepped = flat.copy()
+    stepped[:, 3:] = 2.0
+    assert mask_boundary(mask, flat)[:, 2:4].all()
+    assert not mask_boundary(mask, stepped).any()

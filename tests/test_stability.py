@@ -38,8 +38,12 @@ LSHAPE_ORIGIN = np.array([-0.35, 0.0, 0.1])
 
 @pytest.mark.parametrize("degrees", [0.5, 5.0, 90.0, 170.0, 179.0])
 def test_revolute_angles(degrees):
+    """Near 180 deg a single fixed viewpoint sees disjoint surfaces in the two states (nothing to
+    register), so those cases use full visibility; the angle map itself is tested at pi in
+    test_joints.py."""
     angle = np.radians(degrees)
-    start, end = make_part("lshape", transform_from_revolute(LSHAPE_AXIS, LSHAPE_ORIGIN, angle), seed=int(degrees))
+    start, end = make_part("lshape", transform_from_revolute(LSHAPE_AXIS, LSHAPE_ORIGIN, angle), seed=int(degrees),
+                           partial=degrees < 150)
     estimate = fit_joint(start, end)
     assert_finite(estimate)
     assert estimate.type == "revolute", estimate.diagnostics["type_reason"]

@@ -40,6 +40,9 @@ def joint_range(j: Joint) -> tuple[float, float]:
     return (min(lo, hi), max(lo, hi))
 
 
+MULTI_PART_DOOR_AJAR = 0.3  # fraction of a revolute range at start when several joints move
+
+
 def sample_joint_states(obj: ArticulatedObject, rng: np.random.Generator,
                         start_fraction: float | None = None, end_fraction: float | None = None,
                         max_angle: float = math.pi / 2) -> tuple[dict[str, float], dict[str, float]]:
@@ -237,11 +240,21 @@ def render_partnet_scene(object_dir: str | Path, scene_dir: str | Path, views: i
     """Render a PartNet-Mobility object folder (``mobility.urdf`` + meshes) as a two-state scene.
 
     Every movable joint changes between start and end (see :func:`sample_joint_states`).
+    Objects with several movable joints start with their revolute joints at >= 30 % of their
+    range (doors ajar), so parts behind a door (an oven's racks) are seen in both states: a part
+    hidden in one state cannot be measured from geometry by any method.
     Raises SceneError naming the file when the URDF or a mesh/texture is missing. Returns the gt.
     """
     obj = load_articulated_object(object_dir)
     rng = np.random.default_rng(seed)
     q0, q1 = sample_joint_states(obj, rng, start_fraction, end_fraction)
+    if start_fraction is None and len(obj.model.movable_joints) > 1:
+        for joint in obj.model.movable_joints:
+            if joint.type != "prismatic":
+                lo, hi = joint_range(joint)
+                shift = max(0.0, lo + MULTI_PART_DOOR_AJAR * (hi - lo) - q0[joint.name])
+                q0[joint.name] += shift
+                q1[joint.name] = min(q1[joint.name] + shift, hi)
     return render_articulated_scene(obj, scene_dir, q0, q1, views=views, seed=seed, width=width,
                                     height=height, posed=posed, scramble_masks=scramble_masks,
                                     depth_noise=depth_noise, write_masks=write_masks,

@@ -12,13 +12,25 @@ from ..types import Frame, LabelledCloud, Pointmap
 SEGMENT_STRIDE = 1 << 16  # segment id = frame_index * SEGMENT_STRIDE + mask id (masks are <= uint16)
 
 
-def mask_boundary(mask: np.ndarray) -> np.ndarray:
-    """(H, W) bool: pixels whose label differs from one of their 4-neighbours. O(H W)."""
+def mask_boundary(mask: np.ndarray, depth: np.ndarray | None = None, relative_jump: float = 0.05) -> np.ndarray:
+    """(H, W) bool: pixels next to a 4-neighbour with another label.
+
+    With ``depth`` ((H, W) metres), only label changes between pixels at similar depth count
+    (|d - d_n| <= relative_jump * d): there the depth cannot tell which side a pixel belongs to.
+    Across a depth edge the depth decides, so thin structures (wires, handles) keep their labels.
+    O(H W).
+    """
     boundary = np.zeros(mask.shape, dtype=bool)
-    boundary[:, 1:] |= mask[:, 1:] != mask[:, :-1]
-    boundary[:, :-1] |= mask[:, 1:] != mask[:, :-1]
-    boundary[1:, :] |= mask[1:, :] != mask[:-1, :]
-    boundary[:-1, :] |= mask[1:, :] != mask[:-1, :]
+    for axis in (0, 1):
+        a = [slice(None), slice(None)]
+        b = [slice(None), slice(None)]
+        a[axis], b[axis] = slice(1, None), slice(None, -1)
+        differs = mask[tuple(a)] != mask[tuple(b)]
+        if depth is not None:
+            near, far = depth[tuple(a)], depth[tuple(b)]
+            differs &= np.abs(near - far) <= relative_jump * np.maximum(near, far)
+        boundary[tuple(a)] |= differs
+        boundary[tuple(b)] |= differs
     return boundary
 
 
@@ -54,7 +66,7 @@ def build_labelled_cloud(state: str, frames: list[Frame], pointmaps: list[Pointm
         if frame.mask is not None:
             mask = frame.mask
             if drop_mask_boundaries:
-                mask = np.where(mask_boundary(mask), 0, mask)
+                mask = np.where(mask_boundary(mask, frame.depth), 0, mask)
             mask_ids = mask.reshape(-1)[pixel]
             foreground = mask_ids > 0
             labels[foreground] = frame.index * SEGMENT_STRIDE + mask_ids[foreground]

@@ -11,26 +11,40 @@ from ..types import Frame, Pointmap
 DEFAULT_EDGE_RELATIVE_JUMP = 0.05
 
 
+MIN_CONSISTENT_NEIGHBOURS = 3
+
+
+def consistent_neighbour_count(depth: np.ndarray, relative_jump: float = DEFAULT_EDGE_RELATIVE_JUMP) -> np.ndarray:
+    """(H, W) int: how many of a pixel's 8 neighbours are valid and within ``relative_jump`` of
+    its depth (relative to its own depth). O(H W)."""
+    padded = np.pad(depth, 1, mode="constant")
+    height, width = depth.shape
+    count = np.zeros(depth.shape, dtype=np.int64)
+    tolerance = relative_jump * depth
+    for dy in (0, 1, 2):
+        for dx in (0, 1, 2):
+            if dy == 1 and dx == 1:
+                continue
+            neighbour = padded[dy:dy + height, dx:dx + width]
+            count += (neighbour > 0) & (np.abs(neighbour - depth) <= tolerance)
+    return count
+
+
 def flying_pixel_mask(depth: np.ndarray, relative_jump: float = DEFAULT_EDGE_RELATIVE_JUMP) -> np.ndarray:
-    """Pixels on depth discontinuities.
+    """Pixels not supported by a locally consistent surface ("flying pixels").
+
+    A valid pixel is flagged when fewer than 3 of its 8 neighbours lie within ``relative_jump``
+    of its depth: isolated pixels and 1-pixel lines of depths interpolated between a foreground
+    and a background. Pixels on the edge of a surface (5 consistent neighbours) and structures at
+    least 2 pixels wide (a rack's wires, a handle) are kept.
 
     Args:
         depth: (H, W) float64 metres, 0 = invalid.
-        relative_jump: threshold on |d - d_neighbour| / d over the 4-neighbourhood; a valid pixel
-            next to an invalid one (object silhouette) is also flagged.
 
     Returns:
         (H, W) bool, True where the pixel is a flying pixel. O(H W).
     """
-    valid = depth > 0
-    padded = np.pad(depth, 1, mode="edge")
-    center = padded[1:-1, 1:-1]
-    flagged = np.zeros(depth.shape, dtype=bool)
-    for dy, dx in ((0, 1), (2, 1), (1, 0), (1, 2)):
-        neighbour = padded[dy:dy + depth.shape[0], dx:dx + depth.shape[1]]
-        jump = np.abs(center - neighbour) > relative_jump * np.maximum(center, 1e-12)
-        flagged |= jump | (neighbour <= 0)
-    return flagged & valid
+    return (depth > 0) & (consistent_neighbour_count(depth, relative_jump) < MIN_CONSISTENT_NEIGHBOURS)
 
 
 def pixel_rays(K: np.ndarray, height: int, width: int) -> np.ndarray:
