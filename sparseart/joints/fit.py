@@ -307,9 +307,14 @@ def _fit_model(model, start, end, start_normals, end_normals, config: FitConfig,
     rotation, translation = model.motion(x)
     pair_residual = np.linalg.norm(match_start[rows] @ rotation.T + translation - match_end[cols], axis=1)
     # Truncated symmetric Chamfer RSS on the common chamfer subsamples (comparable across models).
+    # Point-to-plane distances of the Chamfer neighbours: free of the sampling-spacing floor of
+    # point-to-point distances, so small real rotations stand out against a translation.
     moved_chamfer = chamfer_start @ rotation.T + translation
-    forward, _ = cKDTree(chamfer_end).query(moved_chamfer)
-    backward, _ = cKDTree(moved_chamfer).query(chamfer_end)
+    _, forward_index = cKDTree(chamfer_end).query(moved_chamfer)
+    _, backward_index = cKDTree(moved_chamfer).query(chamfer_end)
+    forward = np.abs(np.einsum("ij,ij->i", moved_chamfer - chamfer_end[forward_index], chamfer_normals[1][forward_index]))
+    backward = np.abs(np.einsum("ij,ij->i", chamfer_end - moved_chamfer[backward_index],
+                                chamfer_normals[0][backward_index] @ rotation.T))
     return {"model": model, "x": x, "covariance": covariance, "condition": condition,
             "rotation": rotation, "translation": translation, "pair_residual": pair_residual,
             "tau": tau, "chamfer": np.concatenate([forward, backward]),

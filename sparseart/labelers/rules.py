@@ -15,7 +15,7 @@ Steps (both clouds in one frame):
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -44,6 +44,7 @@ class RuleLabelerConfig:
     max_points_per_segment: int = 1500
     pair_registration_points: int = 500
     motion_radius_spacings: float = 4.0
+    motion_piece_min_share: float = 0.01  # without masks, moved pieces smaller than this share are noise
     seed: int = 0
 
 
@@ -85,13 +86,15 @@ class RuleBasedLabeler:
             start_segments, end_segments = _motion_split(start, end, config.motion_radius_spacings * spacing,
                                                          spacing)
             warnings.append("no masks: parts come from a motion-based split (points that moved)")
+            config = replace(config, min_segment_share=max(config.min_segment_share,
+                                                           config.motion_piece_min_share))
         start_groups = _merge_across_frames(start, start_segments, radius, config, rng)
         end_groups = _merge_across_frames(end, end_segments, radius, config, rng)
         if not start_groups or not end_groups:
             raise ValueError("no usable segments in one of the states (masks empty after filtering)")
-        pairs = _match_groups(start, end, start_groups, end_groups, radius, config, warnings)
+        pairs, extras = _match_groups(start, end, start_groups, end_groups, radius, config, warnings)
         return _assign_parts(start, end, start_segments, end_segments, start_groups, end_groups, pairs,
-                             radius, config, warnings, motion_split=not has_masks)
+                             extras, radius, config, warnings, motion_split=not has_masks)
 
 
 # ---------------------------------------------------------------------- helpers
@@ -186,10 +189,11 @@ def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_Group],
                   end_groups: list[_Group], radius: float, config: RuleLabelerConfig,
-                  warnings: list[str]) -> list[tuple[int, int, np.ndarray, float]]:
+                  warnings: list[str]) -> tuple[list[tuple[int, int, np.ndarray, float]], list[tuple[str, int, int]]]:
     """Register every start group to every end group and pair them by Hungarian matching.
 
-    Returns (start group, end group, start->end transform (4, 4), score in [0, 1]) per pair.
+    Returns the pairs (start group, end group, start->end transform (4, 4), score in [0, 1]) and
+    the extras (state, group, partner group in the other state) for groups left over.
     """
     from ..joints.register import register_rigid
 
@@ -223,25 +227,25 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
             transforms[(i, j)] = best_transform
     rows, cols = linear_sum_assignment(-scores)
     chosen = {(int(i), int(j)) for i, j in zip(rows, cols) if scores[i, j] >= config.match_min_score}
+    pairs = [(i, j, transforms[(i, j)], float(scores[i, j])) for i, j in sorted(chosen)]
     # Groups left over by the one-to-one matching (a surface seen in two views that did not merge,
-    # an over-segmented part) join their best partner; shared motions are merged later.
+    # an over-segmented or fragmented part) follow the part of their best-scoring partner.
+    extras: list[tuple[str, int, int]] = []
     for i in range(len(start_groups)):
         if all(p[0] != i for p in chosen) and scores[i].max() >= config.match_min_score:
-            chosen.add((i, int(np.argmax(scores[i]))))
+            extras.append(("start", i, int(np.argmax(scores[i]))))
     for j in range(len(end_groups)):
         if all(p[1] != j for p in chosen) and scores[:, j].max() >= config.match_min_score:
-            chosen.add((int(np.argmax(scores[:, j])), j))
-    pairs = [(i, j, transforms[(i, j)], float(scores[i, j])) for i, j in sorted(chosen)]
-    matched_start = {p[0] for p in pairs}
-    matched_end = {p[1] for p in pairs}
+            extras.append(("end", j, int(np.argmax(scores[:, j]))))
+    attached = {(state, k) for state, k, _ in extras}
     unmatched = ([f"start group of {len(g.indices)} points" for k, g in enumerate(start_groups)
-                  if k not in matched_start] +
+                  if k not in {p[0] for p in pairs} and ("start", k) not in attached] +
                  [f"end group of {len(g.indices)} points" for k, g in enumerate(end_groups)
-                  if k not in matched_end])
+                  if k not in {p[1] for p in pairs} and ("end", k) not in attached])
     if unmatched:
         warnings.append("seen in one state only (occluded, moved out of view, or not rigid): "
                         + ", ".join(unmatched) + "; left unassigned")
-    return pairs
+    return pairs, extras
 
 
 def _pair_score(transform: np.ndarray, source: np.ndarray, target: np.ndarray,
@@ -275,8 +279,9 @@ def _motion_size(transform: np.ndarray) -> tuple[float, float]:
 
 def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.ndarray,
                   end_segments: np.ndarray, start_groups: list[_Group], end_groups: list[_Group],
-                  pairs: list[tuple[int, int, np.ndarray, float]], radius: float,
-                  config: RuleLabelerConfig, warnings: list[str], motion_split: bool) -> PartLabels:
+                  pairs: list[tuple[int, int, np.ndarray, float]], extras: list[tuple[str, int, int]],
+                  radius: float, config: RuleLabelerConfig, warnings: list[str],
+                  motion_split: bool) -> PartLabels:
     """Static pairs -> part 0; moving pairs merged by shared motion -> parts 1..k."""
     rng = np.random.default_rng(config.seed + 2)
     static_pairs, moving_pairs = [], []
@@ -348,6 +353,15 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
             warnings.append(f"part {part_id}: rotation of {angle:.1f} deg is between "
                             f"{PRISMATIC_PRIOR_DEG} and {REVOLUTE_PRIOR_DEG} deg: joint type is left to the fit")
         parts.append(PartSpec(id=part_id, role="movable", parent=0))
+    start_group_part = {i: start_map[start_groups[i].segments[0]] for i, _, _, _ in pairs}
+    end_group_part = {j: end_map[end_groups[j].segments[0]] for _, j, _, _ in pairs}
+    for state, group, partner in extras:
+        if state == "start" and partner in end_group_part:
+            for s in start_groups[group].segments:
+                start_map[s] = end_group_part[partner]
+        elif state == "end" and partner in start_group_part:
+            for s in end_groups[group].segments:
+                end_map[s] = start_group_part[partner]
     if len(parts) == 1:
         warnings.append("no part moved between the two states")
     start_part = _points_to_parts(start_segments, start_map)
