@@ -129,21 +129,21 @@ def _options(options: RunOptions | None, overrides: dict) -> RunOptions:
 def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabeler | None,
                    options: RunOptions, clock: StageClock, warnings: list[str], scene: Scene | None,
                    aligned: bool, frame: tuple[str, str, str]) -> Articulation:
-    if aligned:
-        clock.skip("align", "cameras given for every image: both states are in one frame")
-    else:
-        with clock.stage("align", "unposed: end state registered to start through the static part"):
-            end = _coarse_align(start, end, warnings)
     if labeler is None:
         from .labelers.rules import RuleBasedLabeler
 
         labeler = RuleBasedLabeler()
-    with clock.stage("label", f"part labeler: {labeler.name}"):
-        labels = labeler.label(start, end, scene, aligned=True)
+    if aligned:
+        clock.skip("align", "cameras given for every image: both states are in one frame")
+        with clock.stage("label", f"part labeler: {labeler.name}"):
+            labels = labeler.label(start, end, scene, aligned=True)
+    else:
+        with clock.stage("align", "unposed: end state registered to start through the static part"):
+            first = labeler.label(start, end, scene, aligned=False)
+            end = _align_on_static(start, end, first, warnings)
+        with clock.stage("label", f"part labeler: {labeler.name} (after alignment)"):
+            labels = labeler.label(start, end, scene, aligned=True)
     warnings.extend(labels.warnings)
-    if not aligned:
-        with clock.stage("align_static", "refining the alignment on the static part"):
-            end = _refine_alignment_on_static(start, end, labels, warnings)
     known_type = options.joint_type != "auto" or all(p.joint_type for p in labels.movable)
     with clock.stage("fit", "joint type given: classification skipped" if known_type
                      else "fitting revolute and prismatic, choosing by penalised residual"):
@@ -179,34 +179,25 @@ def _transformed(cloud: LabelledCloud, transform: np.ndarray) -> LabelledCloud:
     return moved
 
 
-def _coarse_align(start: LabelledCloud, end: LabelledCloud, warnings: list[str]) -> LabelledCloud:
-    """Unposed single views: register the whole end cloud to the start cloud from the identity
-    (a still camera) with a robust ICP that locks onto the dominant static structure."""
-    from .joints.register import register_rigid
+def _align_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabels,
+                     warnings: list[str]) -> LabelledCloud:
+    """Bring the end cloud into the start frame through the static part (part 0).
 
-    rng = np.random.default_rng(0)
-    source = end.points[rng.choice(len(end), size=min(len(end), 5000), replace=False)]
-    target = start.points[rng.choice(len(start), size=min(len(start), 5000), replace=False)]
-    registration = register_rigid(source, target, init=np.eye(4))
-    if registration.inlier_fraction < 0.3:
-        warnings.append(f"unposed alignment is weak: only {registration.inlier_fraction:.0%} of the end "
-                        f"points agree with the start view after registration")
-    return _transformed(end, registration.transform)
-
-
-def _refine_alignment_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabels,
-                                warnings: list[str]) -> LabelledCloud:
+    The labeler's static start->end motion (identity for a still camera) seeds a robust ICP of the
+    end static points onto the start static points; the end cloud is moved by its inverse.
+    """
     from .joints.register import register_rigid
 
     start_static = start.points[labels.start_part == 0]
     end_static = end.points[labels.end_part == 0]
     if len(start_static) < MIN_PART_POINTS or len(end_static) < MIN_PART_POINTS:
-        warnings.append("static part too small to refine the unposed alignment")
+        warnings.append("static part too small to align the unposed states; they are used as they are")
         return end
-    rng = np.random.default_rng(1)
-    source = end_static[rng.choice(len(end_static), size=min(len(end_static), 5000), replace=False)]
-    target = start_static[rng.choice(len(start_static), size=min(len(start_static), 5000), replace=False)]
-    registration = register_rigid(source, target, init=np.eye(4))
+    seed = np.linalg.inv(labels.initial_motion.get(0, np.eye(4)))
+    registration = register_rigid(end_static, start_static, init=seed)
+    if registration.inlier_fraction < 0.5:
+        warnings.append(f"unposed alignment is weak: {registration.inlier_fraction:.0%} of the static points "
+                        f"agree after registration")
     return _transformed(end, registration.transform)
 
 

@@ -13,7 +13,6 @@ from scipy.spatial.transform import Rotation
 from sparseart.joints import (clean_part_points, fit_joint, kabsch, register_rigid, robust_kabsch,
                               screw_from_transform, select_joint_type, transform_from_prismatic,
                               transform_from_revolute)
-from sparseart.joints.fit import FitConfig
 from sparseart.joints.select import bic
 
 VIEWPOINT = np.array([0.4, 0.6, 3.0])

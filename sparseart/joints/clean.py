@@ -60,3 +60,18 @@ def clean_part_points(
     keep[:] = False
     keep[survivors[big[component]]] = True
     return keep
+
+
+def estimate_normals(points: np.ndarray, neighbours: int = 12) -> np.ndarray:
+    """Unoriented unit normals (N, 3) by PCA of the k nearest neighbours; O(N k log N).
+
+    Used to gate matches: on partial views a point whose surface is hidden in the other state
+    would otherwise pull on the nearest visible surface of a different orientation.
+    """
+    count = points.shape[0]
+    if count < 4:
+        return np.tile([0.0, 0.0, 1.0], (count, 1))
+    _, index = cKDTree(points).query(points, k=min(neighbours, count))
+    local = points[index] - points[index].mean(axis=1, keepdims=True)
+    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
+    return vectors[:, :, 0]

@@ -26,11 +26,11 @@ from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 from scipy.spatial.transform import Rotation
 
-from sparseart.joints.clean import clean_part_points
+from sparseart.joints.clean import clean_part_points, estimate_normals
 from sparseart.joints.register import register_rigid
 from sparseart.joints.screw import (apply_transform, make_transform, perturb_axis, screw_from_transform,
                                     tangent_basis, transform_from_prismatic, transform_from_revolute, unit)
-from sparseart.joints.select import PARAMETER_COUNT, select_joint_type
+from sparseart.joints.select import select_joint_type
 from sparseart.types import JointEstimate
 
 MIN_POINTS = 5
@@ -125,21 +125,6 @@ def _subsample(count: int, total: int, rng: np.random.Generator) -> np.ndarray:
     if total <= count:
         return np.arange(total)
     return np.sort(rng.choice(total, count, replace=False))
-
-
-def estimate_normals(points: np.ndarray, neighbours: int = 12) -> np.ndarray:
-    """Unoriented unit normals (N, 3) by PCA of the k nearest neighbours; O(N k log N).
-
-    Used to gate matches: on partial views a point whose surface is hidden in the other state
-    would otherwise pull on the nearest visible surface of a different orientation.
-    """
-    count = points.shape[0]
-    if count < 4:
-        return np.tile([0.0, 0.0, 1.0], (count, 1))
-    _, index = cKDTree(points).query(points, k=min(neighbours, count))
-    local = points[index] - points[index].mean(axis=1, keepdims=True)
-    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
-    return vectors[:, :, 0]
 
 
 def _hungarian_pairs(moved: np.ndarray, end: np.ndarray, end_tree: cKDTree, floor: float, ceiling: float,

@@ -327,6 +327,8 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
             end_map[s] = 0
     parts = [PartSpec(id=0, role="static")]
     motions, priors = {}, {}
+    if static_pairs:
+        motions[0] = max(static_pairs, key=lambda p: len(start_groups[p[0]].indices))[2]
     def start_part_indices(members: list[int]) -> np.ndarray:
         return np.unique(np.concatenate([start_groups[moving_pairs[k][0]].indices for k in members]))
 
