@@ -54,17 +54,6 @@ def test_rule_labeler_with_masks(kind, amount) -> None:
     assert np.mean(labels.start_part[start.segment == 2] == 1) > 0.95
 
 
-@pytest.mark.parametrize("kind,amount", CASES)
-def test_rule_labeler_without_masks(kind, amount) -> None:
-    start, end, truth = make_clouds(kind, amount, seed=2)
-    for cloud in (start, end):
-        cloud.segment[:] = -1
-        cloud.segment_source.clear()
-    result = run_clouds(start, end)
-    _check(result, truth, axis_tol=2.0, position_tol=0.03)
-    assert any("motion-based split" in w for w in result.warnings)
-
-
 def test_rule_labeler_ids_disagree_across_states() -> None:
     start, end, truth = make_clouds("revolute", np.radians(30), seed=4)
     end.segment = np.where(end.segment == 1, 7, 5)  # end ids swapped and renamed

@@ -67,7 +67,8 @@ class RenderMesh:
 
     def to_o3d(self):
         """An open3d legacy TriangleMesh with vertex colours averaged from the triangle colours."""
-        import open3d as o3d
+        from .._open3d import open3d
+        o3d = open3d()
 
         m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(self.vertices),
                                       o3d.utility.Vector3iVector(self.triangles.astype(np.int32)))

@@ -27,7 +27,8 @@ class PreparedScene:
     """
 
     def __init__(self, parts: Sequence[tuple[RenderMesh, int]]):
-        import open3d as o3d
+        from .._open3d import open3d
+        o3d = open3d()
 
         meshes, labels = [], []
         for mesh, label in parts:
@@ -54,7 +55,8 @@ class PreparedScene:
 
         Returns (t (N,) float64 in units of the direction length, inf = miss; tri (N,) int64, -1 = miss).
         """
-        import open3d as o3d
+        from .._open3d import open3d
+        o3d = open3d()
 
         n = len(origins)
         if len(self.tri_label) == 0:

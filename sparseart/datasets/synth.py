@@ -20,7 +20,8 @@ SHELF_Z = 0.32  # top of the drawer compartment
 def box_mesh(lo: tuple[float, float, float], hi: tuple[float, float, float],
              color: tuple[float, float, float]) -> RenderMesh:
     """Axis-aligned box from corner ``lo`` to ``hi`` (metres) with one RGB colour in [0, 1]."""
-    import open3d as o3d
+    from .._open3d import open3d
+    o3d = open3d()
 
     lo_a, hi_a = np.asarray(lo, float), np.asarray(hi, float)
     size = hi_a - lo_a
