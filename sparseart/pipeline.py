@@ -206,6 +206,8 @@ def _fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, opt
     from .joints.fit import fit_joint
 
     object_centre = np.median(start.points, axis=0)
+    static_mask = labels.start_part == 0
+    static_points = start.points[static_mask] if static_mask.sum() >= MIN_PART_POINTS else None
     results = []
     for spec in labels.parts:
         start_mask = labels.start_part == spec.id
@@ -227,11 +229,56 @@ def _fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, opt
         except ValueError as error:
             warnings.append(f"part {spec.id}: joint fit failed: {error}")
             continue
+        if joint.type == "revolute" and static_points is not None:
+            joint = _resolve_mirror(joint, start.points[start_mask], end.points[end_mask], static_points,
+                                    start.colors[start_mask], end.colors[end_mask], fit_joint)
         if joint.type == "revolute":
             joint.origin = _point_on_line_nearest(joint.origin, joint.axis, object_centre)
         warnings.extend(f"part {spec.id}: {w}" for w in joint.warnings)
         result.joint = joint
     return results
+
+
+MIRROR_RESIDUAL_RATIO = 1.5   # a mirror fit within this residual ratio is a real alternative
+
+
+def _resolve_mirror(joint, start_points: np.ndarray, end_points: np.ndarray, static_points: np.ndarray,
+                    start_colors: np.ndarray, end_colors: np.ndarray, fit_joint):
+    """A slab (door, lid) turned by theta about its hinge also maps onto its end pose by a turn
+    of theta - 180 deg about its own mid-line: both fit the points. Fit that mirror too and keep
+    the solution whose axis lies nearer the static part (a hinge is attached to its parent),
+    unless its residual is clearly worse. Costs one more fit for slab-like parts only."""
+    from scipy.spatial import cKDTree
+    from scipy.spatial.transform import Rotation
+
+    centred = start_points - start_points.mean(axis=0)
+    extents = np.sqrt(np.linalg.eigvalsh(centred.T @ centred / len(centred)))
+    if extents[0] > 0.3 * extents[1]:
+        return joint  # not slab-like: no mirror ambiguity
+    flip = np.eye(4)
+    flip[:3, :3] = Rotation.from_rotvec(np.pi * joint.axis).as_matrix()
+    centre = start_points.mean(axis=0)
+    flip[:3, 3] = centre - flip[:3, :3] @ centre
+    try:
+        mirror = fit_joint(start_points, end_points, joint_type="revolute", initial_transform=joint.transform @ flip,
+                           start_colors=start_colors, end_colors=end_colors)
+    except ValueError:
+        return joint
+    if mirror.type != "revolute":
+        return joint
+    static_tree = cKDTree(static_points)
+
+    def axis_gap(candidate) -> float:
+        """Median distance from the axis line (sampled across the part) to the static points."""
+        offsets = (start_points - candidate.origin) @ candidate.axis
+        samples = candidate.origin + np.linspace(offsets.min(), offsets.max(), 25)[:, None] * candidate.axis
+        return float(np.median(static_tree.query(samples, k=1)[0]))
+
+    comparable = mirror.residual <= MIRROR_RESIDUAL_RATIO * joint.residual
+    if comparable and axis_gap(mirror) < axis_gap(joint):
+        mirror.warnings.append("mirror ambiguity (symmetric slab): chose the axis nearer the static part")
+        return mirror
+    return joint
 
 
 def _point_on_line_nearest(origin: np.ndarray, axis: np.ndarray, point: np.ndarray) -> np.ndarray:
