@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from . import metrics
+from .sampling import random_subset
 from .types import Articulation, LabelledCloud, Scene
 
 CHAMFER_SAMPLE = 3000
@@ -45,9 +46,7 @@ def true_groups(cloud: LabelledCloud, scene: Scene, gt: dict[str, Any]) -> np.nd
 
 
 def _subsample(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    if len(points) <= CHAMFER_SAMPLE:
-        return points
-    return points[rng.choice(len(points), size=CHAMFER_SAMPLE, replace=False)]
+    return points[random_subset(len(points), CHAMFER_SAMPLE, rng)]
 
 
 def evaluate(result: Articulation, scene: Scene, gt: dict[str, Any]) -> list[dict[str, Any]]:

@@ -24,6 +24,22 @@ def _set_cameras(scene: Path, data: dict) -> None:
     (scene / "cameras.json").write_text(json.dumps(data))
 
 
+DELETE = object()
+
+
+def _set_camera_field(scene: Path, path: tuple, value) -> None:
+    """Set (or, with DELETE, remove) one field of cameras.json addressed by keys/indices."""
+    data = _cameras(scene)
+    container = data
+    for key in path[:-1]:
+        container = container[key]
+    if value is DELETE:
+        del container[path[-1]]
+    else:
+        container[path[-1]] = value
+    _set_cameras(scene, data)
+
+
 def test_valid_scene_loads(tiny_scene: Path) -> None:
     scene = load_scene(tiny_scene)
     assert scene.posed and scene.has_depth and scene.has_masks
@@ -44,9 +60,7 @@ def _break_depth_size(s: Path) -> Path:
 
 
 def _break_k_missing(s: Path) -> Path:
-    data = _cameras(s)
-    del data["start"][0]["K"]
-    _set_cameras(s, data)
+    _set_camera_field(s, ("start", 0, "K"), DELETE)
     return s / "start/depth/000.png"
 
 
@@ -56,16 +70,12 @@ def _break_no_cameras(s: Path) -> Path:
 
 
 def _break_nonfinite_pose(s: Path) -> Path:
-    data = _cameras(s)
-    data["end"][0]["cam_to_world"][0][3] = float("nan")
-    (s / "cameras.json").write_text(json.dumps(data).replace("NaN", "NaN"))
+    _set_camera_field(s, ("end", 0, "cam_to_world", 0, 3), float("nan"))
     return s / "cameras.json"
 
 
 def _break_nonrigid_pose(s: Path) -> Path:
-    data = _cameras(s)
-    data["end"][0]["cam_to_world"][0][0] = 2.0
-    _set_cameras(s, data)
+    _set_camera_field(s, ("end", 0, "cam_to_world", 0, 0), 2.0)
     return s / "cameras.json"
 
 
@@ -116,16 +126,12 @@ def _break_no_images(s: Path) -> Path:
 
 
 def _break_negative_scale(s: Path) -> Path:
-    data = _cameras(s)
-    data["depth_scale"] = -1
-    _set_cameras(s, data)
+    _set_camera_field(s, ("depth_scale",), -1)
     return s / "cameras.json"
 
 
 def _break_bad_k(s: Path) -> Path:
-    data = _cameras(s)
-    data["start"][0]["K"] = [[0, 0, 1], [0, 1, 1], [0, 0, 1]]
-    _set_cameras(s, data)
+    _set_camera_field(s, ("start", 0, "K"), [[0, 0, 1], [0, 1, 1], [0, 0, 1]])
     return s / "cameras.json"
 
 
@@ -176,9 +182,7 @@ def test_rgb_only_scene_needs_model(tmp_path: Path) -> None:
 
 def test_partly_posed_scene_is_unposed_with_warning(tmp_path: Path) -> None:
     scene = write_tiny_scene(tmp_path / "scene")
-    data = _cameras(scene)
-    del data["end"][0]["cam_to_world"]
-    _set_cameras(scene, data)
+    _set_camera_field(scene, ("end", 0, "cam_to_world"), DELETE)
     loaded = load_scene(scene)
     assert not loaded.posed and any("unposed" in w for w in loaded.warnings)
 

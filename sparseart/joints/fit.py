@@ -31,6 +31,7 @@ from sparseart.joints.register import register_rigid
 from sparseart.joints.screw import (apply_transform, make_transform, perturb_axis, screw_from_transform,
                                     tangent_basis, transform_from_prismatic, transform_from_revolute, unit)
 from sparseart.joints.select import select_joint_type
+from sparseart.sampling import random_subset
 from sparseart.types import JointEstimate
 
 MIN_POINTS = 5
@@ -118,13 +119,6 @@ class _Prismatic:
     def recentred(self, x: np.ndarray) -> "_Prismatic":
         axis, distance = self.unpack(x)
         return _Prismatic(axis, distance)
-
-
-def _subsample(count: int, total: int, rng: np.random.Generator) -> np.ndarray:
-    """Sorted random indices of at most ``count`` of ``total`` rows."""
-    if total <= count:
-        return np.arange(total)
-    return np.sort(rng.choice(total, count, replace=False))
 
 
 def _hungarian_pairs(moved: np.ndarray, end: np.ndarray, end_tree: cKDTree, floor: float, ceiling: float,
@@ -244,12 +238,12 @@ def _covariance(problem: _Problem, x: np.ndarray, f_scale: float, factor: float)
 def _fit_model(model, start, end, start_normals, end_normals, config: FitConfig,
                rng: np.random.Generator) -> dict:
     """Hungarian/update alternation then the full robust solve for one model (normalised units)."""
-    pick_start = _subsample(config.max_match_points, len(start), rng)
-    pick_end = _subsample(config.max_match_points, len(end), rng)
+    pick_start = random_subset(len(start), config.max_match_points, rng)
+    pick_end = random_subset(len(end), config.max_match_points, rng)
     match_start, match_end = start[pick_start], end[pick_end]
     match_start_normals, match_end_normals = start_normals[pick_start], end_normals[pick_end]
-    pick_start = _subsample(config.max_chamfer_points, len(start), rng)
-    pick_end = _subsample(config.max_chamfer_points, len(end), rng)
+    pick_start = random_subset(len(start), config.max_chamfer_points, rng)
+    pick_end = random_subset(len(end), config.max_chamfer_points, rng)
     chamfer_start, chamfer_end = start[pick_start], end[pick_end]
     chamfer_normals = (start_normals[pick_start], end_normals[pick_end])
     normal_cos = float(np.cos(np.radians(config.normal_gate_deg)))

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sparseart.joints.screw import apply_transform, make_transform, rotation_angle
+from sparseart.sampling import random_subset
 
 
 @dataclass
@@ -36,12 +37,6 @@ class RigidRegistration:
     inlier_fraction: float
     correspondences: np.ndarray
     diagnostics: dict = field(default_factory=dict)
-
-
-def _subsample(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
-    if points.shape[0] <= count:
-        return np.arange(points.shape[0])
-    return np.sort(rng.choice(points.shape[0], count, replace=False))
 
 
 def _spacing(points: np.ndarray) -> float:
@@ -183,8 +178,8 @@ def register_rigid(
     normalise = make_transform(np.eye(3) / scale, -centre / scale)
     denormalise = np.linalg.inv(normalise)
     source_n, target_n = (source - centre) / scale, (target - centre) / scale
-    source_sub = source_n[_subsample(source_n, max_points, rng)]
-    target_sub = target_n[_subsample(target_n, max_points, rng)]
+    source_sub = source_n[random_subset(source_n.shape[0], max_points, rng)]
+    target_sub = target_n[random_subset(target_n.shape[0], max_points, rng)]
     resolution = max(_spacing(source_sub), _spacing(target_sub))
     inlier_distance = inlier_factor * resolution
     target_tree = cKDTree(target_sub)
@@ -197,7 +192,7 @@ def register_rigid(
     else:
         hypotheses = _hypotheses(source_sub, target_sub)
     if len(hypotheses) > 1:  # screen the hypotheses cheaply on a coarser subsample, refine the best 2
-        coarse_pick = _subsample(source_sub, max(max_points // 3, 50), rng)
+        coarse_pick = random_subset(source_sub.shape[0], max(max_points // 3, 50), rng)
         coarse_cloud = _o3d_cloud(source_sub[coarse_pick])
         screened = [_refine(name, start, coarse_cloud, target_cloud, schedule[:2], source_sub[coarse_pick],
                             target_sub, target_tree, schedule[1]) for name, start in hypotheses]
@@ -248,8 +243,8 @@ def _colored_polish(source_n, target_n, source_colors, target_colors, transform,
 
     reg = o3d.pipelines.registration
     try:
-        pick_s = _subsample(source_n, max_points, rng)
-        pick_t = _subsample(target_n, max_points, rng)
+        pick_s = random_subset(source_n.shape[0], max_points, rng)
+        pick_t = random_subset(target_n.shape[0], max_points, rng)
         source_cloud = _o3d_cloud(source_n[pick_s], radius=4.0 * resolution)
         target_cloud = _o3d_cloud(target_n[pick_t], radius=4.0 * resolution)
         source_cloud.colors = o3d.utility.Vector3dVector(np.asarray(source_colors, np.float64)[pick_s])
