@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator
 
@@ -16,8 +16,8 @@ import numpy as np
 from .labelers.base import PartLabeler
 from .lift.labels import build_labelled_cloud
 from .lift.rgbd import pointmap_from_depth
-from .types import (JOINT_TYPES, Articulation, LabelledCloud, PartLabels, PartResult, Scene,
-                    SceneError, StageRecord)
+from .types import (JOINT_TYPES, Articulation, JointEstimate, LabelledCloud, PartLabels, PartResult,
+                    Scene, SceneError, StageRecord)
 
 MIN_PART_POINTS = 20
 
@@ -174,9 +174,8 @@ def _lift_rgbd(scene: Scene, posed: bool, options: RunOptions,
 
 
 def _transformed(cloud: LabelledCloud, transform: np.ndarray) -> LabelledCloud:
-    moved = cloud.subset(np.arange(len(cloud)))
-    moved.points = cloud.points @ transform[:3, :3].T + transform[:3, 3]
-    return moved
+    """The same cloud with its points moved by a (4, 4) transform (other arrays shared)."""
+    return replace(cloud, points=cloud.points @ transform[:3, :3].T + transform[:3, 3])
 
 
 def _align_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabels,
@@ -203,8 +202,6 @@ def _align_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabel
 
 def _fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, options: RunOptions,
                warnings: list[str]) -> list[PartResult]:
-    from .joints.fit import fit_joint
-
     object_centre = np.median(start.points, axis=0)
     static_mask = labels.start_part == 0
     static_points = start.points[static_mask] if static_mask.sum() >= MIN_PART_POINTS else None
@@ -222,16 +219,13 @@ def _fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, opt
                             f"{int(end_mask.sum())} at end) to fit a joint")
             continue
         joint_type = options.joint_type if options.joint_type != "auto" else (spec.joint_type or "auto")
+        seeds = [labels.initial_motion.get(spec.id), *labels.alternative_motions.get(spec.id, [])]
         try:
-            joint = fit_joint(start.points[start_mask], end.points[end_mask], joint_type=joint_type,
-                              initial_transform=labels.initial_motion.get(spec.id),
-                              start_colors=start.colors[start_mask], end_colors=end.colors[end_mask])
+            joint = _fit_part(start.points[start_mask], end.points[end_mask], start.colors[start_mask],
+                              end.colors[end_mask], joint_type, seeds, static_points)
         except ValueError as error:
             warnings.append(f"part {spec.id}: joint fit failed: {error}")
             continue
-        if joint.type == "revolute" and static_points is not None:
-            joint = _resolve_mirror(joint, start.points[start_mask], end.points[end_mask], static_points,
-                                    start.colors[start_mask], end.colors[end_mask], fit_joint)
         if joint.type == "revolute":
             joint.origin = _point_on_line_nearest(joint.origin, joint.axis, object_centre)
         warnings.extend(f"part {spec.id}: {w}" for w in joint.warnings)
@@ -239,46 +233,84 @@ def _fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, opt
     return results
 
 
-MIRROR_RESIDUAL_RATIO = 1.5   # a mirror fit within this residual ratio is a real alternative
+def _fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndarray, end_colors: np.ndarray,
+              joint_type: str, seeds: list[np.ndarray | None], static_points: np.ndarray | None) -> JointEstimate:
+    """Fit one part's joint from every seed motion (the labeler's, its tied alternatives, and for
+    a slab the mirror of the best fit) and keep the one :func:`_choose_fit` prefers.
+
+    part_start / part_end: (N, 3) / (M, 3) float64 points of the part, scene frame.
+    Raises ValueError (from the fitter) when no seed gives a fit.
+    """
+    from .joints.fit import fit_joint
+
+    colours = dict(start_colors=start_colors, end_colors=end_colors)
+    candidates, errors = [], []
+    for seed in seeds:
+        try:
+            candidates.append(fit_joint(part_start, part_end, joint_type=joint_type, initial_transform=seed,
+                                        **colours))
+        except ValueError as error:
+            errors.append(error)
+    if not candidates:
+        raise errors[0]
+    mirror_seed = _mirror_seed(min(candidates, key=lambda c: c.residual), part_start)
+    if mirror_seed is not None and joint_type != "prismatic":
+        try:
+            candidates.append(fit_joint(part_start, part_end, joint_type="revolute",
+                                        initial_transform=mirror_seed, **colours))
+        except ValueError:
+            pass
+    return _choose_fit(candidates, part_start, static_points)
 
 
-def _resolve_mirror(joint, start_points: np.ndarray, end_points: np.ndarray, static_points: np.ndarray,
-                    start_colors: np.ndarray, end_colors: np.ndarray, fit_joint):
-    """A slab (door, lid) turned by theta about its hinge also maps onto its end pose by a turn
-    of theta - 180 deg about its own mid-line: both fit the points. Fit that mirror too and keep
-    the solution whose axis lies nearer the static part (a hinge is attached to its parent),
-    unless its residual is clearly worse. Costs one more fit for slab-like parts only."""
-    from scipy.spatial import cKDTree
+COMPARABLE_RESIDUAL_RATIO = 1.5  # fits within this residual ratio of the best explain the data alike
+SLAB_THICKNESS_RATIO = 0.3       # smallest/middle extent below this: a slab (door, lid)
+
+
+def _mirror_seed(joint: JointEstimate, start_points: np.ndarray) -> np.ndarray | None:
+    """A slab (door, lid) turned by theta about its hinge also maps onto its end pose by a turn of
+    theta - 180 deg about its own mid-line. For a revolute fit of a slab-like part, the (4, 4)
+    start->end motion of that mirror solution (to seed a second fit); None otherwise."""
     from scipy.spatial.transform import Rotation
 
-    centred = start_points - start_points.mean(axis=0)
+    if joint.type != "revolute":
+        return None
+    centre = start_points.mean(axis=0)
+    centred = start_points - centre
     extents = np.sqrt(np.linalg.eigvalsh(centred.T @ centred / len(centred)))
-    if extents[0] > 0.3 * extents[1]:
-        return joint  # not slab-like: no mirror ambiguity
+    if extents[0] > SLAB_THICKNESS_RATIO * extents[1]:
+        return None
     flip = np.eye(4)
     flip[:3, :3] = Rotation.from_rotvec(np.pi * joint.axis).as_matrix()
-    centre = start_points.mean(axis=0)
     flip[:3, 3] = centre - flip[:3, :3] @ centre
-    try:
-        mirror = fit_joint(start_points, end_points, joint_type="revolute", initial_transform=joint.transform @ flip,
-                           start_colors=start_colors, end_colors=end_colors)
-    except ValueError:
-        return joint
-    if mirror.type != "revolute":
-        return joint
+    return joint.transform @ flip
+
+
+def _choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
+                static_points: np.ndarray | None) -> JointEstimate:
+    """Among fits from different seeds, keep those whose residual is within
+    ``COMPARABLE_RESIDUAL_RATIO`` of the best. If the best is revolute and several comparable
+    revolute fits remain, the one whose axis lies nearest the static part wins (a hinge is
+    attached to its parent); otherwise the lowest residual. O(C (25 log S)) for C candidates."""
+    from scipy.spatial import cKDTree
+
+    best = min(candidates, key=lambda c: c.residual)
+    comparable = [c for c in candidates if c.residual <= COMPARABLE_RESIDUAL_RATIO * best.residual
+                  and c.type == "revolute"]
+    if best.type != "revolute" or len(comparable) < 2 or static_points is None:
+        return best
     static_tree = cKDTree(static_points)
 
-    def axis_gap(candidate) -> float:
+    def axis_gap(candidate: JointEstimate) -> float:
         """Median distance from the axis line (sampled across the part) to the static points."""
         offsets = (start_points - candidate.origin) @ candidate.axis
         samples = candidate.origin + np.linspace(offsets.min(), offsets.max(), 25)[:, None] * candidate.axis
         return float(np.median(static_tree.query(samples, k=1)[0]))
 
-    comparable = mirror.residual <= MIRROR_RESIDUAL_RATIO * joint.residual
-    if comparable and axis_gap(mirror) < axis_gap(joint):
-        mirror.warnings.append("mirror ambiguity (symmetric slab): chose the axis nearer the static part")
-        return mirror
-    return joint
+    chosen = min(comparable, key=axis_gap)
+    if chosen is not best:
+        chosen.warnings.append("several motions fit alike (symmetric part): chose the axis nearest the static part")
+    return chosen
 
 
 def _point_on_line_nearest(origin: np.ndarray, axis: np.ndarray, point: np.ndarray) -> np.ndarray:

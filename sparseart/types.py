@@ -177,6 +177,8 @@ class PartLabels:
         (evidence for the fitter; may be absent).
     type_prior: part id -> "revolute" | "prismatic" read off the motion; a hint, not a decision
         (unlike ``PartSpec.joint_type``, it does not skip the fitter's classification).
+    alternative_motions: part id -> other (4, 4) start->end motions that explain the part's points
+        about as well as ``initial_motion`` (symmetric parts); the pipeline fits from each.
     """
 
     parts: list[PartSpec]
@@ -186,6 +188,7 @@ class PartLabels:
     end_segment_to_part: dict[int, int] = field(default_factory=dict)
     initial_motion: dict[int, np.ndarray] = field(default_factory=dict)
     type_prior: dict[int, str] = field(default_factory=dict)
+    alternative_motions: dict[int, list[np.ndarray]] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
 
     @property

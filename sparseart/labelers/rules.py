@@ -22,12 +22,14 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from ..sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 
 STATIC_ANGLE_DEG = 1.0          # a matched pair moving less than this and ...
 STATIC_SHIFT_RADII = 1.5        # ... less than this many inlier radii is static
 REVOLUTE_PRIOR_DEG = 10.0       # rotation above this: revolute prior
 PRISMATIC_PRIOR_DEG = 2.0       # rotation below this: prismatic prior (in between: no prior)
+DISTINCT_MOTION_DEG = 5.0       # registered motions further apart than this are real alternatives
 IDENTITY_PREFERENCE = 0.05      # a motion must beat "stayed put" by this overlap share to be taken
 
 
@@ -142,7 +144,7 @@ def _merge_across_frames(cloud: LabelledCloud, segments: np.ndarray, radius: flo
     minimum = max(config.min_segment_points, config.min_segment_share * len(cloud))
     kept = [int(i) for i, c in zip(ids, counts) if c >= minimum]
     members = {s: np.flatnonzero(segments == s) for s in kept}
-    samples = {s: rng.choice(idx, size=min(len(idx), config.max_points_per_segment), replace=False)
+    samples = {s: idx[random_subset(len(idx), config.max_points_per_segment, rng)]
                for s, idx in members.items()}
     trees = {s: cKDTree(cloud.points[samples[s]]) for s in kept}
     frame_of = {s: int(cloud.frame_index[members[s][0]]) for s in kept}
@@ -173,10 +175,9 @@ def _merge_across_frames(cloud: LabelledCloud, segments: np.ndarray, radius: flo
     return result
 
 
-def _sample(group: _Group, limit: int, rng: np.random.Generator) -> np.ndarray:
-    if len(group.indices) <= limit:
-        return group.indices
-    return rng.choice(group.indices, size=limit, replace=False)
+def _group_sample(group: _Group, limit: int, rng: np.random.Generator) -> np.ndarray:
+    """Indices (into the state's cloud) of at most ``limit`` random points of a group."""
+    return group.indices[random_subset(len(group.indices), limit, rng)]
 
 
 def _overlap(moved: np.ndarray, target_tree: cKDTree, radius: float) -> float:
@@ -198,8 +199,8 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
     from ..joints.register import register_rigid
 
     rng = np.random.default_rng(config.seed + 1)
-    start_samples = [_sample(g, config.max_points_per_segment, rng) for g in start_groups]
-    end_samples = [_sample(g, config.max_points_per_segment, rng) for g in end_groups]
+    start_samples = [_group_sample(g, config.max_points_per_segment, rng) for g in start_groups]
+    end_samples = [_group_sample(g, config.max_points_per_segment, rng) for g in end_groups]
     # Overlaps are measured against every point of a group (a sub-sample would be too sparse for
     # the inlier radius); the backward direction maps end samples back into the start tree.
     start_trees = [cKDTree(start.points[g.indices]) for g in start_groups]
@@ -326,7 +327,7 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
         for s in end_groups[j].segments:
             end_map[s] = 0
     parts = [PartSpec(id=0, role="static")]
-    motions, priors = {}, {}
+    motions, priors, alternative_motions = {}, {}, {}
     if static_pairs:
         motions[0] = max(static_pairs, key=lambda p: len(start_groups[p[0]].indices))[2]
     def start_part_indices(members: list[int]) -> np.ndarray:
@@ -343,9 +344,11 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
                 start_map[s] = part_id
             for s in end_groups[j].segments:
                 end_map[s] = part_id
-        transform = _polish_motion(start, end, start_part_indices(members), end_part_indices(members),
-                                   moving_pairs[best][2], config)
+        transform, alternatives = _polish_motion(start, end, start_part_indices(members),
+                                                 end_part_indices(members), moving_pairs[best][2], config)
         motions[part_id] = transform
+        if alternatives:
+            alternative_motions[part_id] = alternatives
         angle, _ = _motion_size(transform)
         if angle >= REVOLUTE_PRIOR_DEG:
             priors[part_id] = "revolute"
@@ -375,18 +378,35 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
         start_map, end_map = {}, {}
     return PartLabels(parts=parts, start_part=start_part, end_part=end_part,
                       start_segment_to_part=start_map, end_segment_to_part=end_map,
-                      initial_motion=motions, type_prior=priors, warnings=warnings)
+                      initial_motion=motions, type_prior=priors, alternative_motions=alternative_motions,
+                      warnings=warnings)
 
 
 def _polish_motion(start: LabelledCloud, end: LabelledCloud, start_indices: np.ndarray,
-                   end_indices: np.ndarray, transform: np.ndarray, config: RuleLabelerConfig) -> np.ndarray:
-    """Refine a part's start->end motion on all of its points (with colour), from ``transform``."""
-    from ..joints.register import register_rigid
+                   end_indices: np.ndarray, transform: np.ndarray,
+                   config: RuleLabelerConfig) -> tuple[np.ndarray, list[np.ndarray]]:
+    """A part's start->end motion on all of its points (with colour), and tied alternatives.
 
-    registration = register_rigid(start.points[start_indices], end.points[end_indices],
-                                  source_colors=start.colors[start_indices],
-                                  target_colors=end.colors[end_indices], init=transform, seed=config.seed)
-    return registration.transform
+    The pair matching registered sub-samples of single groups with cheap hypotheses only; a
+    symmetric part (a round door, a box lid) can come out turned the wrong way there. So the full
+    global registration (all hypotheses, FPFH fallback) runs on the whole part too, beside the
+    pair's motion refined from its own start. The higher inlier fraction is the primary motion;
+    the other, when it differs by more than ``DISTINCT_MOTION_DEG``, is returned as an alternative:
+    registration inlier fractions do not separate a symmetric part's turns reliably, so the joint
+    fit decides (by residual, then by where a hinge can be).
+    """
+    from ..joints.register import register_rigid
+    from ..joints.screw import rotation_angle
+
+    source, target = start.points[start_indices], end.points[end_indices]
+    colours = dict(source_colors=start.colors[start_indices], target_colors=end.colors[end_indices])
+    candidates = [register_rigid(source, target, init=transform, seed=config.seed, **colours),
+                  register_rigid(source, target, seed=config.seed, **colours)]
+    candidates.sort(key=lambda c: -c.inlier_fraction)
+    chosen = candidates[0].transform
+    alternatives = [c.transform for c in candidates[1:]
+                    if np.degrees(rotation_angle(c.transform[:3, :3] @ chosen[:3, :3].T)) > DISTINCT_MOTION_DEG]
+    return chosen, alternatives
 
 
 def _points_to_parts(segments: np.ndarray, mapping: dict[int, int]) -> np.ndarray:
@@ -401,7 +421,7 @@ def _same_motion(start: LabelledCloud, end: LabelledCloud, start_groups: list[_G
                  config: RuleLabelerConfig, rng: np.random.Generator) -> bool:
     """Does either pair's motion carry the other pair's start points onto its end points?"""
     for (ia, ja, ta, _), (ib, jb, _, _) in ((pair_a, pair_b), (pair_b, pair_a)):
-        source = start.points[_sample(start_groups[ib], config.max_points_per_segment, rng)]
+        source = start.points[_group_sample(start_groups[ib], config.max_points_per_segment, rng)]
         target_tree = cKDTree(end.points[end_groups[jb].indices])
         if _overlap(_apply(ta, source), target_tree, radius) >= config.same_motion_overlap:
             return True
