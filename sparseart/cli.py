@@ -1,4 +1,4 @@
-"""Command line: ``sparseart run | demo | render``.
+"""Command line: ``sparseart run | demo | render | bench``.
 
 Exit codes: 0 success, 2 bad input (one line naming the file and the problem), 1 internal error.
 """
@@ -30,6 +30,17 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--no-masks", action="store_true", help="ignore the scene's masks")
     run.add_argument("--json", action="store_true", help="print articulation.json instead of a summary")
     run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--refine", action="store_true",
+                     help="refine the joints with 3D Gaussians (SPLART; needs torch); writes PLY and renders")
+    run.add_argument("--render-states", default="0,0.5,1",
+                     help="with --refine: articulation states to render, fractions of the motion (default 0,0.5,1)")
+    run.add_argument("--refine-iters", type=int, default=None,
+                     help="with --refine: cross-mobile rendering steps; the other stages scale with it (default 80)")
+    run.add_argument("--refine-holdout", type=int, default=0,
+                     help="with --refine: last views per state held out of fitting for PSNR (default 0)")
+    run.add_argument("--urdf", action="store_true", help="also write object.urdf + meshes/ (part point clouds)")
+    run.add_argument("--ply", action="store_true", help="also write start_parts.ply / end_parts.ply (part ids)")
+    run.add_argument("--report", action="store_true", help="also write report.png (clouds, axes, stage times)")
 
     demo = commands.add_parser("demo", help="render a procedural cabinet and recover its joints")
     demo.add_argument("--views", type=int, default=3, choices=[1, 2, 3, 4])
@@ -47,13 +58,22 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--scramble-masks", action="store_true", help="random mask ids per image")
     render.add_argument("--no-masks", action="store_true", help="write no masks")
     render.add_argument("--depth-noise", type=float, default=0.0, help="multiplicative depth noise sigma")
+    bench = commands.add_parser("bench", help="accuracy against run time over rendered objects, with an ICP peer")
+    bench.add_argument("--objects", type=Path, nargs="+", default=None,
+                       help="object folders (or folders of them); default ../shared/data/partnet")
+    bench.add_argument("--out", type=Path, default=Path("bench_out"), help="results and scene cache folder")
+    bench.add_argument("--quick", action="store_true", help="about a minute: 3 small objects, default setting")
+    bench.add_argument("--seeds", type=int, nargs="+", default=[0], help="render/run seeds (default 0)")
+    bench.add_argument("--no-peer", action="store_true", help="skip the ICP baseline")
+    bench.add_argument("--stability", action="store_true",
+                       help="the stiff/extreme-case stability report of the joint fitter instead")
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
-        return {"run": _cmd_run, "demo": _cmd_demo, "render": _cmd_render}[args.command](args)
+        return {"run": _cmd_run, "demo": _cmd_demo, "render": _cmd_render, "bench": _cmd_bench}[args.command](args)
     except SceneError as error:
         print(f"sparseart: error: {error}", file=sys.stderr)
         return EXIT_BAD_INPUT
@@ -74,15 +94,85 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
     if args.out.exists() and not args.out.is_dir():
         raise SceneError(f"{args.out}: --out exists and is not a folder")
+    refine_options, render_states = _refine_settings(args) if args.refine else (None, ())
     result = run(args.scene, options=RunOptions(joint_type=args.joint_type, use_masks=not args.no_masks,
-                                                seed=args.seed))
+                                                seed=args.seed, refine=args.refine,
+                                                refine_options=refine_options))
     path = write_articulation(result, args.out)
+    if args.refine:
+        from .refine.outputs import write_refine_outputs
+
+        for written in write_refine_outputs(result, args.out, render_states):
+            print(f"wrote {written}", file=sys.stderr)
+    extras = _write_extras(result, args)
     if args.json:
         print(json.dumps(articulation_to_dict(result), indent=2))
     else:
         print("\n".join(summary_lines(result)))
-        print(f"wrote {path}")
+        print(f"wrote {path}" + "".join(f", {extra}" for extra in extras))
     return 0
+
+
+def _write_extras(result, args: argparse.Namespace) -> list[Path]:
+    """The --urdf / --ply / --report files beside articulation.json (each written atomically)."""
+    written: list[Path] = []
+    if getattr(args, "urdf", False):
+        from .urdf_export import write_urdf
+
+        written.append(write_urdf(result, args.out, name="object"))
+    if getattr(args, "ply", False):
+        from .ply_export import write_labelled_clouds
+
+        written.extend(write_labelled_clouds(result, args.out))
+    if getattr(args, "report", False):
+        from .viz import write_report
+
+        written.append(write_report(result, args.out / "report.png"))
+    return written
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    if args.out.exists() and not args.out.is_dir():
+        raise SceneError(f"{args.out}: --out exists and is not a folder")
+    if args.stability:
+        from .stability import run_stability
+
+        print(run_stability(args.out, quick=args.quick))
+        return 0
+    from .bench_grid import QUICK_OBJECTS, find_objects, report_text, run_bench
+
+    objects = find_objects(args.objects)
+    if args.quick:
+        small = [o for o in objects if o.name in QUICK_OBJECTS]
+        objects = small or objects[:3]
+    result = run_bench(objects, args.out, seeds=args.seeds, quick=args.quick, peer=not args.no_peer)
+    print(report_text(result))
+    print(f"wrote {args.out}/table.txt, rows.csv/json, summary.csv/json, error_vs_time.png, error_vs_factor.png")
+    return 0 if result.rows else 1
+
+
+def _refine_settings(args: argparse.Namespace):
+    """(RefineOptions, render-state fractions) from the run command's --refine-* options."""
+    from .refine.api import RefineOptions
+
+    try:
+        states = tuple(float(v) for v in args.render_states.split(",") if v.strip())
+    except ValueError:
+        raise SceneError(f"--render-states: expected comma-separated numbers, got {args.render_states!r}") from None
+    if not states or not all(math.isfinite(v) for v in states):
+        raise SceneError(f"--render-states: expected finite numbers, got {args.render_states!r}")
+    options = RefineOptions(seed=args.seed, holdout_views=args.refine_holdout)
+    if args.refine_iters is not None:
+        if args.refine_iters < 0:
+            raise SceneError(f"--refine-iters must be >= 0, got {args.refine_iters}")
+        defaults = RefineOptions()
+        ratio = args.refine_iters / defaults.cross_mobile_iters
+        options.cross_mobile_iters = args.refine_iters
+        options.per_state_iters = int(round(defaults.per_state_iters * ratio))
+        options.cross_static_iters = int(round(defaults.cross_static_iters * ratio))
+    if args.refine_holdout < 0:
+        raise SceneError(f"--refine-holdout must be >= 0, got {args.refine_holdout}")
+    return options, states
 
 
 def _cmd_render(args: argparse.Namespace) -> int:

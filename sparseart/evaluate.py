@@ -45,6 +45,22 @@ def true_groups(cloud: LabelledCloud, scene: Scene, gt: dict[str, Any]) -> np.nd
     return groups
 
 
+def _result_to_gt_frame(result: Articulation, gt: dict[str, Any]) -> np.ndarray:
+    """(4, 4) rigid map from the result's frame to gt.json's world frame.
+
+    Posed results are already in the world frame (identity). Unposed results are in the OpenCV
+    frame of the first start camera (design section 2): its true cam_to_world from gt.json maps
+    them to the world. Relative-scale results are not rescaled here; their prismatic distances
+    and positions are only comparable after a scale is known.
+    """
+    if result.frame_kind != "camera":
+        return np.eye(4)
+    cameras = gt.get("cameras", {}).get("start")
+    if not cameras:
+        raise ValueError("gt.json has no true start cameras to bring a camera-frame result into the world frame")
+    return np.asarray(cameras[0], dtype=np.float64)
+
+
 def _subsample(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return points[random_subset(len(points), CHAMFER_SAMPLE, rng)]
 
@@ -69,10 +85,12 @@ def evaluate(result: Articulation, scene: Scene, gt: dict[str, Any]) -> list[dic
                 cost[i, k] = metrics.chamfer_distance(part_points, points)
     matches, unmatched = metrics.match_parts(cost) if len(predicted) else ([], list(range(len(gt_joints))))
     scale = float(gt.get("scale", 1.0))
+    to_world = _result_to_gt_frame(result, gt)
     rows: list[dict[str, Any]] = [{} for _ in gt_joints]
     for i, k in matches:
         part, joint = predicted[i]
-        pred = {"type": joint.type, "axis": joint.axis, "origin": joint.origin,
+        pred = {"type": joint.type, "axis": to_world[:3, :3] @ joint.axis,
+                "origin": to_world[:3, :3] @ joint.origin + to_world[:3, 3],
                 "angle": joint.angle, "distance": joint.distance}
         rows[k] = {**metrics.joint_errors(pred, gt_joints[k]), "part": part.spec.id}
     for k in unmatched:

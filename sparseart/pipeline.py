@@ -30,12 +30,16 @@ class RunOptions:
     reject_flying_pixels: drop depth-edge pixels when lifting.
     use_masks: transfer the scene's masks onto the points (False: the labeler sees no segments).
     seed: random seed for every sub-sampling step (results are deterministic for a seed).
+    refine: run the SPLART refinement (needs torch and the scene's images); refine_options: its
+        :class:`~sparseart.refine.RefineOptions`.
     """
 
     joint_type: str = "auto"
     reject_flying_pixels: bool = True
     use_masks: bool = True
     seed: int = 0
+    refine: bool = False
+    refine_options: object | None = None  # sparseart.refine.RefineOptions (torch); None = its defaults
 
 
 class StageClock:
@@ -148,7 +152,12 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
     with clock.stage("fit", "joint type given: classification skipped" if known_type
                      else "fitting revolute and prismatic, choosing by penalised residual"):
         parts = _fit_parts(start, end, labels, options, warnings)
-    clock.skip("refine", "refinement not requested (--refine)")
+    if options.refine:
+        from .refine.api import refine_parts
+
+        refine_parts(start, end, labels, parts, scene, options.refine_options, clock, warnings)
+    else:
+        clock.skip("refine", "refinement not requested (--refine)")
     return Articulation(frame_kind=frame[0], frame_reference=frame[1], units=frame[2],
                         parts=parts, stages=clock.records, warnings=warnings,
                         start_cloud=start, end_cloud=end, labels=labels)

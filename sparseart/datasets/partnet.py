@@ -198,12 +198,16 @@ def render_articulated_scene(obj: ArticulatedObject, scene_dir: str | Path,
                              seed: int = 0, width: int = 320, height: int = 240, posed: bool = True,
                              scramble_masks: bool = False, depth_noise: float = 0.0,
                              write_masks: bool = True, same_cameras: bool = True,
-                             hfov_deg: float = DEFAULT_HFOV_DEG, fill: float = 0.95) -> dict:
+                             hfov_deg: float = DEFAULT_HFOV_DEG, fill: float = 0.95,
+                             flying_pixels: float = 0.0, pose_noise_deg: float = 0.0,
+                             pose_noise_m: float = 0.0) -> dict:
     """Render ``obj`` at ``q_start`` and ``q_end`` into ``scene_dir`` (design section 2) + gt.json.
 
     Mask label = 1 + part group (1 = static base, 2.. = each movable joint's child subtree).
     ``same_cameras=False`` draws fresh camera poses for the end state; ``fill`` is the fraction of
-    the smaller half field of view spanned by the bounding sphere. Returns the gt dict.
+    the smaller half field of view spanned by the bounding sphere. ``flying_pixels`` (fraction of
+    depth-edge pixels), ``pose_noise_deg`` (degrees) and ``pose_noise_m`` (object units = metres
+    for metric objects) degrade the written scene (see ``scene_writer.write_scene``). Returns the gt dict.
     """
     rng = np.random.default_rng(seed)
     parts0 = obj.posed_parts(q_start)
@@ -229,14 +233,17 @@ def render_articulated_scene(obj: ArticulatedObject, scene_dir: str | Path,
           "joint_states": {"start": dict(q_start), "end": dict(q_end)}}
     return write_scene(scene_dir, rendered["start"], rendered["end"], gt, posed=posed,
                        scramble_masks=scramble_masks, depth_noise=depth_noise,
-                       write_masks=write_masks, seed=seed)
+                       write_masks=write_masks, seed=seed, flying_pixels=flying_pixels,
+                       pose_noise_deg=pose_noise_deg, pose_noise_m=pose_noise_m)
 
 
 def render_partnet_scene(object_dir: str | Path, scene_dir: str | Path, views: int = 3,
                          seed: int = 0, width: int = 320, height: int = 240, posed: bool = True,
                          scramble_masks: bool = False, depth_noise: float = 0.0,
                          write_masks: bool = True, start_fraction: float | None = None,
-                         end_fraction: float | None = None, same_cameras: bool = True) -> dict:
+                         end_fraction: float | None = None, same_cameras: bool = True,
+                         flying_pixels: float = 0.0, pose_noise_deg: float = 0.0,
+                         pose_noise_m: float = 0.0) -> dict:
     """Render a PartNet-Mobility object folder (``mobility.urdf`` + meshes) as a two-state scene.
 
     Every movable joint changes between start and end (see :func:`sample_joint_states`).
@@ -258,4 +265,5 @@ def render_partnet_scene(object_dir: str | Path, scene_dir: str | Path, views: i
     return render_articulated_scene(obj, scene_dir, q0, q1, views=views, seed=seed, width=width,
                                     height=height, posed=posed, scramble_masks=scramble_masks,
                                     depth_noise=depth_noise, write_masks=write_masks,
-                                    same_cameras=same_cameras)
+                                    same_cameras=same_cameras, flying_pixels=flying_pixels,
+                                    pose_noise_deg=pose_noise_deg, pose_noise_m=pose_noise_m)

@@ -61,10 +61,61 @@ def scramble_labels(label: np.ndarray, rng: np.random.Generator,
     return lut[label], {int(n): int(o) for o, n in zip(ids, new.tolist())}
 
 
+FLYING_EDGE_RELATIVE_JUMP = 0.03  # a 3x3 depth range above this fraction of the depth is an edge
+FLYING_BACKGROUND_GAP = 0.25      # an empty (0) neighbour stands for a background this much farther
+
+
+def add_flying_pixels(depth: np.ndarray, fraction: float, rng: np.random.Generator) -> np.ndarray:
+    """Mix foreground and background depth on depth-edge pixels, as time-of-flight and stereo
+    sensors do where one pixel straddles a silhouette.
+
+    depth: (H, W) float64 metres, 0 = invalid. Edge pixels are those whose 3x3 neighbourhood holds
+    valid depths spanning more than ``FLYING_EDGE_RELATIVE_JUMP`` of the nearest one, or valid and
+    empty pixels together (an empty neighbour stands for a background ``FLYING_BACKGROUND_GAP``
+    farther). A ``fraction`` in [0, 1] of them (chosen with ``rng``) gets ``near + u (far - near)``,
+    u ~ U(0, 1), so empty pixels beside the object can become valid. Returns a new (H, W) array. O(H W).
+    """
+    if not 0.0 <= fraction <= 1.0:
+        raise ValueError(f"flying_pixels must be a fraction in [0, 1], got {fraction}")
+    depth = np.asarray(depth, dtype=np.float64)
+    valid = depth > 0
+    kernel = np.ones((3, 3), np.uint8)
+    near = cv2.erode(np.where(valid, depth, np.inf).astype(np.float32), kernel).astype(np.float64)
+    far = cv2.dilate(np.where(valid, depth, 0.0).astype(np.float32), kernel).astype(np.float64)
+    any_valid = np.isfinite(near)
+    any_empty = cv2.dilate((~valid).astype(np.uint8), kernel).astype(bool)
+    far = np.where(any_empty & any_valid, np.maximum(far, near * (1.0 + FLYING_BACKGROUND_GAP)), far)
+    near_or_zero = np.where(any_valid, near, 0.0)
+    edge = any_valid & (far - near_or_zero > FLYING_EDGE_RELATIVE_JUMP * near_or_zero)
+    chosen = edge & (rng.random(depth.shape) < fraction)
+    out = depth.copy()
+    out[chosen] = near[chosen] + rng.random(int(chosen.sum())) * (far[chosen] - near[chosen])
+    return out
+
+
+def perturb_pose(cam_to_world: np.ndarray, rotation_deg: float, translation: float,
+                 rng: np.random.Generator) -> np.ndarray:
+    """A (4, 4) cam_to_world with pose noise: rotated by exactly ``rotation_deg`` degrees about a
+    random axis through the camera centre and moved by exactly ``translation`` (scene units, i.e.
+    metres for metric objects) in a random direction. Models calibration / odometry error."""
+    from scipy.spatial.transform import Rotation
+
+    if rotation_deg < 0 or translation < 0:
+        raise ValueError(f"pose noise must be >= 0, got {rotation_deg} deg, {translation}")
+    out = np.asarray(cam_to_world, dtype=np.float64).copy()
+    axis = rng.standard_normal(3)
+    axis /= np.linalg.norm(axis)
+    out[:3, :3] = Rotation.from_rotvec(np.radians(rotation_deg) * axis).as_matrix() @ out[:3, :3]
+    direction = rng.standard_normal(3)
+    out[:3, 3] += translation * direction / np.linalg.norm(direction)
+    return out
+
+
 def write_scene(scene_dir: str | Path, start: list[RenderedView], end: list[RenderedView],
                 gt: dict | None = None, *, depth_scale: float = 1000.0, posed: bool = True,
                 scramble_masks: bool = False, depth_noise: float = 0.0, write_masks: bool = True,
-                write_depth: bool = True, seed: int = 0) -> dict | None:
+                write_depth: bool = True, seed: int = 0, flying_pixels: float = 0.0,
+                pose_noise_deg: float = 0.0, pose_noise_m: float = 0.0) -> dict | None:
     """Write the views of both states, ``cameras.json`` and (if given) ``gt.json``.
 
     posed: include each camera's ``cam_to_world`` in cameras.json (gt.json always keeps them under
@@ -72,6 +123,10 @@ def write_scene(scene_dir: str | Path, start: list[RenderedView], end: list[Rend
     scramble_masks: random per-image ids (seeded); gt gets ``"mask_maps"``
         {"start": [{written id (str): group label}, ...], "end": [...]}.
     depth_noise: sigma of multiplicative Gaussian depth noise (0.01 = 1 %), seeded.
+    flying_pixels: fraction of depth-edge pixels given a mixed foreground/background depth
+        (:func:`add_flying_pixels`), applied before the noise; seeded.
+    pose_noise_deg / pose_noise_m: error of the cam_to_world written to cameras.json
+        (:func:`perturb_pose`; degrees, scene units); gt.json keeps the true poses; seeded.
     Returns the gt dict as written (or None).
     """
     scene_dir = Path(scene_dir)
@@ -88,6 +143,8 @@ def write_scene(scene_dir: str | Path, start: list[RenderedView], end: list[Rend
             _write_png(scene_dir / state / "rgb" / name, np.ascontiguousarray(v.rgb[:, :, ::-1]))
             if write_depth:
                 d = np.asarray(v.depth, dtype=np.float64).copy()
+                if flying_pixels > 0:
+                    d = add_flying_pixels(d, flying_pixels, rng)
                 valid = d > 0
                 if depth_noise > 0:
                     d[valid] *= 1.0 + depth_noise * rng.standard_normal(int(valid.sum()))
@@ -103,7 +160,10 @@ def write_scene(scene_dir: str | Path, start: list[RenderedView], end: list[Rend
             e = {"image": f"rgb/{name}", "K": np.asarray(v.K, float).tolist(),
                  "width": int(v.rgb.shape[1]), "height": int(v.rgb.shape[0])}
             if posed:
-                e["cam_to_world"] = np.asarray(v.cam_to_world, float).tolist()
+                written = np.asarray(v.cam_to_world, float)
+                if pose_noise_deg > 0 or pose_noise_m > 0:
+                    written = perturb_pose(written, pose_noise_deg, pose_noise_m, rng)
+                e["cam_to_world"] = written.tolist()
             entries.append(e)
             c2ws.append(np.asarray(v.cam_to_world, float).tolist())
         cams[state] = entries
@@ -116,6 +176,8 @@ def write_scene(scene_dir: str | Path, start: list[RenderedView], end: list[Rend
     gt["cameras"] = gt_cams
     gt["posed"] = bool(posed)
     gt["depth_noise"] = float(depth_noise)
+    gt["flying_pixels"] = float(flying_pixels)
+    gt["pose_noise"] = {"deg": float(pose_noise_deg), "translation": float(pose_noise_m)}
     if write_masks and scramble_masks:
         gt["mask_maps"] = mask_maps
     _write_json(scene_dir / "gt.json", gt)

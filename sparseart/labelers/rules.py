@@ -30,6 +30,9 @@ STATIC_SHIFT_RADII = 1.5        # ... less than this many inlier radii is static
 REVOLUTE_PRIOR_DEG = 10.0       # rotation above this: revolute prior
 PRISMATIC_PRIOR_DEG = 2.0       # rotation below this: prismatic prior (in between: no prior)
 DISTINCT_MOTION_DEG = 5.0       # registered motions further apart than this are real alternatives
+IDENTITY_TRUSTED_SCORE = 0.6   # identity overlap above which "stayed put" is preferred on near-ties
+ADJACENT_RADII = 3.0           # groups closer than this many inlier radii touch (may be one part)
+TRAVEL_PENALTY = 0.25  # score units per object diameter a pairing moves its points (tie-breaker)
 IDENTITY_PREFERENCE = 0.05      # a motion must beat "stayed put" by this overlap share to be taken
 
 
@@ -206,6 +209,8 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
     start_trees = [cKDTree(start.points[g.indices]) for g in start_groups]
     end_trees = [cKDTree(end.points[g.indices]) for g in end_groups]
     scores = np.zeros((len(start_groups), len(end_groups)))
+    travel = np.zeros_like(scores)
+    diameter = max(float(np.linalg.norm(np.ptp(start.points, axis=0))), 1e-12)
     transforms: dict[tuple[int, int], np.ndarray] = {}
     for i, s_idx in enumerate(start_samples):
         source = start.points[s_idx]
@@ -222,11 +227,17 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
             registration = register_rigid(source, target, max_points=config.pair_registration_points,
                                           use_fpfh=False, seed=config.seed)
             score = _pair_score(registration.transform, source, target, trees, colours, radius)
-            if score > best_score + IDENTITY_PREFERENCE:
+            # The preference protects well-seen static surfaces; a weak identity overlap (a part
+            # mostly hidden in one state, whose visible edge happens to land on itself) earns none.
+            preference = IDENTITY_PREFERENCE if best_score >= IDENTITY_TRUSTED_SCORE else 0.0
+            if score > best_score + preference:
                 best_score, best_transform = score, registration.transform
             scores[i, j] = best_score
             transforms[(i, j)] = best_transform
-    rows, cols = linear_sum_assignment(-scores)
+            travel[i, j] = float(np.median(np.linalg.norm(_apply(best_transform, source) - source, axis=1)))
+    # Identical sibling parts (an oven's racks) register onto each other as well as onto
+    # themselves; the pairing that moves the parts less is the articulated one.
+    rows, cols = linear_sum_assignment(-scores + TRAVEL_PENALTY * travel / diameter)
     chosen = {(int(i), int(j)) for i, j in zip(rows, cols) if scores[i, j] >= config.match_min_score}
     pairs = [(i, j, transforms[(i, j)], float(scores[i, j])) for i, j in sorted(chosen)]
     # Groups left over by the one-to-one matching (a surface seen in two views that did not merge,
@@ -419,7 +430,17 @@ def _points_to_parts(segments: np.ndarray, mapping: dict[int, int]) -> np.ndarra
 def _same_motion(start: LabelledCloud, end: LabelledCloud, start_groups: list[_Group],
                  end_groups: list[_Group], pair_a: tuple, pair_b: tuple, radius: float,
                  config: RuleLabelerConfig, rng: np.random.Generator) -> bool:
-    """Does either pair's motion carry the other pair's start points onto its end points?"""
+    """Do two moving pairs belong to one part? They must touch (in either state: pieces of one
+    part are adjacent, identical sibling parts such as an oven's racks are not) and either pair's
+    motion must carry the other pair's start points onto its end points. O(S log N) per test."""
+    (ia, ja, _, _), (ib, jb, _, _) = pair_a, pair_b
+    touching = False
+    for cloud, groups, a, b in ((start, start_groups, ia, ib), (end, end_groups, ja, jb)):
+        sample = cloud.points[_group_sample(groups[b], config.max_points_per_segment, rng)]
+        gap = cKDTree(cloud.points[groups[a].indices]).query(sample, k=1)[0].min()
+        touching = touching or gap < ADJACENT_RADII * radius
+    if not touching:
+        return False
     for (ia, ja, ta, _), (ib, jb, _, _) in ((pair_a, pair_b), (pair_b, pair_a)):
         source = start.points[_group_sample(start_groups[ib], config.max_points_per_segment, rng)]
         target_tree = cKDTree(end.points[end_groups[jb].indices])

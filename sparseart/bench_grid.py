@@ -1,0 +1,300 @@
+"""``sparseart bench``: a one-factor-at-a-time grid of settings over a set of objects, sparseart and
+the ICP peer side by side, written as CSV + JSON + PNG plots.
+
+A full factorial grid (views x pose x depth noise x pose noise x refinement) is far too expensive
+on 2 cores, so every setting changes ONE factor of the default (3 views per state, posed, clean
+depth, exact poses, no refinement). Scenes are rendered once per (object, rendering setting) and
+cached under ``OUT/scenes``; a rerun with the same ``--out`` reuses them.
+
+Outputs in ``OUT``: ``rows.csv`` / ``rows.json`` (one row per joint x setting x method),
+``summary.csv`` / ``summary.json`` (aggregate per setting x method, and per object),
+``table.txt`` (what is printed), ``error_vs_time.png``, ``error_vs_factor.png``.
+"""
+from __future__ import annotations
+
+import csv
+import io
+import platform
+import statistics
+import sys
+import time
+from dataclasses import dataclass, replace
+from datetime import date
+from pathlib import Path
+from typing import Any, TextIO
+
+from . import metrics
+from .bench import METHOD_PEER, METHOD_SPARSEART, BenchSetting, evaluate_object, refine_available
+from .scene import write_bytes_atomic, write_json_atomic
+
+QUICK_OBJECTS = ("toaster_press_103486", "stapler_press_102990", "door_9168")
+FLYING_FRACTION = 0.5  # fraction of depth-edge pixels made flying in the noisy-depth settings
+CONFIG_FIELDS = ("views", "posed", "depth_noise", "flying_pixels", "pose_noise_deg", "pose_noise_m", "refine")
+STAGES = ("read", "lift", "align", "label", "fit", "refine", "peer_segment", "peer_register")
+
+
+def default_partnet_dir() -> Path:
+    """``../shared/data/partnet`` next to the repository (the shared objects)."""
+    return Path(__file__).resolve().parents[2] / "shared" / "data" / "partnet"
+
+
+def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting], list[str]]:
+    """The one-factor-at-a-time grid: (settings, skipped-setting reasons).
+
+    default: 3 views, posed, no depth noise, no pose noise, no refinement; then views 1 / 2 / 4,
+    unposed, depth noise 1 % and 3 % (each with flying pixels on half the depth-edge pixels),
+    pose noise 0.5 deg + 0.5 cm (object units), refinement (only when ``RunOptions.refine`` exists).
+    ``quick``: the default setting only.
+    """
+    base = BenchSetting(seed=seed, name="default")
+    if quick:
+        return [base], []
+    settings = [base, *(replace(base, views=v, name=f"views{v}") for v in (1, 2, 4)),
+                replace(base, posed=False, name="unposed"),
+                replace(base, depth_noise=0.01, flying_pixels=FLYING_FRACTION, name="depth1%+fly"),
+                replace(base, depth_noise=0.03, flying_pixels=FLYING_FRACTION, name="depth3%+fly"),
+                replace(base, pose_noise_deg=0.5, pose_noise_m=0.005, name="pose0.5deg0.5cm")]
+    skipped = []
+    if refine_available():
+        settings.append(replace(base, refine=True, name="refine"))
+    else:
+        skipped.append("refine: sparseart.pipeline.RunOptions has no 'refine' option yet (issue 5); setting skipped")
+    return settings, skipped
+
+
+class Progress:
+    """A progress bar on a TTY, plain lines otherwise (logs, CI)."""
+
+    def __init__(self, total: int, stream: TextIO | None = None) -> None:
+        self.total, self.done, self.stream = total, 0, stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.began = time.perf_counter()
+
+    def step(self, label: str) -> None:
+        self.done += 1
+        elapsed = time.perf_counter() - self.began
+        if self.tty:
+            filled = int(30 * self.done / max(self.total, 1))
+            self.stream.write(f"\r[{'#' * filled}{'.' * (30 - filled)}] {self.done}/{self.total} "
+                              f"{elapsed:6.0f}s {label[:40]:40s}")
+            if self.done == self.total:
+                self.stream.write("\n")
+        else:
+            self.stream.write(f"[{self.done}/{self.total}] {label} ({elapsed:.0f}s)\n")
+        self.stream.flush()
+
+
+@dataclass
+class BenchResult:
+    rows: list[dict[str, Any]]
+    summary: list[dict[str, Any]]
+    per_object: list[dict[str, Any]]
+    skipped: list[str]
+    failures: list[str]
+    seconds: float
+
+
+def run_grid(objects: list[Path], out_dir: Path, settings: list[BenchSetting], peer: bool = True,
+             progress: Progress | None = None) -> tuple[list[dict[str, Any]], list[str]]:
+    """Evaluate every object under every setting. Returns (rows, failure lines). An object that
+    fails one setting (bad mesh, pipeline error) is reported and skipped, the rest go on."""
+    rows, failures = [], []
+    scenes = out_dir / "scenes"
+    for setting in settings:
+        for object_dir in objects:
+            try:
+                rows.extend(evaluate_object(object_dir, scenes, setting, peer=peer))
+            except Exception as error:  # noqa: BLE001 - one broken object must not end a long run
+                failures.append(f"{object_dir.name} [{setting.name}]: {type(error).__name__}: {error}")
+            if progress:
+                progress.step(f"{object_dir.name} [{setting.name}]")
+    return rows, failures
+
+
+def _stage_stats(rows: list[dict[str, Any]]) -> dict[str, float]:
+    """Median seconds per stage and in total over the distinct scenes of ``rows``."""
+    scenes = {(r["object"], r["setting"], r["method"]): r for r in rows}.values()
+    out = {"seconds_median": statistics.median(r["pipeline_seconds"] for r in scenes),
+           "seconds_mean": statistics.fmean(r["pipeline_seconds"] for r in scenes)}
+    for stage in STAGES:
+        values = [r["stage_seconds"][stage] for r in scenes if stage in r["stage_seconds"]]
+        if values:
+            out[f"{stage}_seconds_median"] = statistics.median(values)
+    return out
+
+
+def aggregate(rows: list[dict[str, Any]], keys: tuple[str, ...]) -> list[dict[str, Any]]:
+    """``metrics.summarise`` plus stage timings per group of ``keys`` (e.g. setting, method)."""
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault(tuple(row[k] for k in keys), []).append(row)
+    out = []
+    for key, group in groups.items():
+        entry = dict(zip(keys, key))
+        config = group[0].get("config") or {}
+        entry.update({k: config[k] for k in CONFIG_FIELDS if k in config})
+        entry.update(metrics.summarise(group))
+        entry.update(_stage_stats(group))
+        out.append(entry)
+    return out
+
+
+def pareto_front(points: list[tuple[float, float]]) -> list[int]:
+    """Indices of the points not dominated in (time, error): no other point is at most as slow and
+    at most as wrong and strictly better in one. O(P^2) for P points (P ~ tens)."""
+    front = []
+    for i, (t, e) in enumerate(points):
+        if not any(t2 <= t and e2 <= e and (t2 < t or e2 < e) for j, (t2, e2) in enumerate(points) if j != i):
+            front.append(i)
+    return front
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+def summary_table(summary: list[dict[str, Any]]) -> str:
+    """One line per setting and method: type accuracy, success, axis mean/median, position median,
+    state medians, median seconds."""
+    header = (f"{'setting':17s} {'method':9s} {'n':>3s} {'type':>5s} {'succ':>5s} {'axis mean':>9s} "
+              f"{'axis med':>8s} {'pos med':>8s} {'rev° med':>8s} {'pris med':>8s} {'sec med':>7s}")
+    lines = [header]
+    for s in summary:
+        lines.append(f"{s['setting']:17s} {s['method']:9s} {s['count']:3d} {_fmt(s['type_accuracy'], 2):>5s} "
+                     f"{_fmt(s['success_rate'], 2):>5s} {_fmt(s['axis_deg_mean'], 2):>9s} "
+                     f"{_fmt(s['axis_deg_median'], 2):>8s} {_fmt(s['position_median'], 4):>8s} "
+                     f"{_fmt(s['state_revolute_deg_median'], 2):>8s} {_fmt(s['state_prismatic_median'], 4):>8s} "
+                     f"{_fmt(s['seconds_median'], 2):>7s}")
+    return "\n".join(lines)
+
+
+def ratio_note(summary: list[dict[str, Any]]) -> str:
+    """The closing note: sparseart vs the ICP peer per setting (median axis error and median
+    seconds ratios, success rates), and where each wins."""
+    by = {(s["setting"], s["method"]): s for s in summary}
+    lines = []
+    for setting in dict.fromkeys(s["setting"] for s in summary):
+        ours, peer = by.get((setting, METHOD_SPARSEART)), by.get((setting, METHOD_PEER))
+        if not ours or not peer:
+            continue
+        axis_ratio = (ours["axis_deg_median"] / peer["axis_deg_median"]
+                      if peer["axis_deg_median"] else float("nan"))
+        time_ratio = ours["seconds_median"] / peer["seconds_median"] if peer["seconds_median"] else float("nan")
+        winner = ("sparseart" if (ours["success_rate"], -ours["axis_deg_median"]) >
+                  (peer["success_rate"], -peer["axis_deg_median"]) else "icp_peer")
+        lines.append(f"{setting}: sparseart/peer median axis error x{axis_ratio:.2f}, median seconds "
+                     f"x{time_ratio:.2f}; success {ours['success_rate']:.2f} vs {peer['success_rate']:.2f}, "
+                     f"type acc {ours['type_accuracy']:.2f} vs {peer['type_accuracy']:.2f} -> more accurate: {winner}")
+    return "\n".join(lines)
+
+
+CSV_FIELDS = ("object", "setting", "method", "name", "gt_type", "pred_type", "type_correct", "unmatched",
+              "axis_deg", "position", "state", "render_seconds", "pipeline_seconds",
+              *(f"{s}_seconds" for s in STAGES), "n_predicted", "n_warnings")
+
+
+def rows_csv(rows: list[dict[str, Any]]) -> str:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=CSV_FIELDS, extrasaction="ignore")
+    writer.writeheader()
+    for row in rows:
+        flat = dict(row, n_warnings=len(row.get("warnings", [])))
+        flat.update({f"{s}_seconds": row["stage_seconds"].get(s) for s in STAGES})
+        writer.writerow(flat)
+    return buffer.getvalue()
+
+
+def summary_csv(summary: list[dict[str, Any]]) -> str:
+    fields = sorted({k for s in summary for k in s}, key=lambda k: (k not in ("object", "setting", "method"), k))
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=fields)
+    writer.writeheader()
+    writer.writerows(summary)
+    return buffer.getvalue()
+
+
+def machine_line() -> str:
+    import os
+
+    return (f"{date.today()} on {platform.machine()} ({platform.processor() or 'cpu'}), "
+            f"{os.cpu_count()} cores, Python {platform.python_version()}")
+
+
+def run_bench(objects: list[Path], out_dir: Path, seeds: list[int] | None = None, quick: bool = False,
+              peer: bool = True, stream: TextIO | None = None,
+              plots: bool = True, settings: list[BenchSetting] | None = None) -> BenchResult:
+    """The whole benchmark: grid x seeds x objects, outputs written into ``out_dir`` (atomically,
+    file by file). ``settings`` overrides the grid (tests). Returns the rows and summaries."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    seeds = seeds or [0]
+    all_settings, skipped = [], []
+    for seed in seeds:
+        grid, skipped = (settings, []) if settings is not None else grid_settings(seed, quick)
+        all_settings.extend(replace(s, seed=seed) for s in grid)
+    began = time.perf_counter()
+    progress = Progress(len(all_settings) * len(objects), stream)
+    rows, failures = run_grid(objects, out_dir, all_settings, peer=peer, progress=progress)
+    summary = aggregate(rows, ("setting", "method")) if rows else []
+    per_object = aggregate(rows, ("object", "setting", "method")) if rows else []
+    result = BenchResult(rows, summary, per_object, skipped, failures, time.perf_counter() - began)
+    write_outputs(result, out_dir, plots=plots)
+    return result
+
+
+def report_text(result: BenchResult) -> str:
+    parts = [f"# sparseart bench, {machine_line()}; wall {result.seconds:.0f}s; "
+             "positions in raw object units (not x10)", summary_table(result.summary)]
+    note = ratio_note(result.summary)
+    if note:
+        parts += ["", "sparseart vs ICP peer:", note]
+    parts += [f"skipped: {s}" for s in result.skipped]
+    parts += [f"failed: {f}" for f in result.failures]
+    return "\n".join(parts)
+
+
+def write_outputs(result: BenchResult, out_dir: Path, plots: bool = True) -> list[Path]:
+    """rows/summary as CSV + JSON, the printed table, and the plots (when any row exists)."""
+    written = []
+    clean_rows = [{k: v for k, v in r.items() if k != "warnings"} | {"n_warnings": len(r.get("warnings", []))}
+                  for r in result.rows]
+    for name, payload in (("rows.csv", rows_csv(result.rows)), ("summary.csv", summary_csv(result.summary)),
+                          ("table.txt", report_text(result) + "\n")):
+        write_bytes_atomic(out_dir / name, payload.encode())
+        written.append(out_dir / name)
+    write_json_atomic(out_dir / "rows.json", clean_rows)
+    write_json_atomic(out_dir / "summary.json", {"machine": machine_line(), "seconds": result.seconds,
+                                                 "summary": result.summary, "per_object": result.per_object,
+                                                 "skipped": result.skipped, "failures": result.failures})
+    written += [out_dir / "rows.json", out_dir / "summary.json"]
+    if plots and result.summary:
+        from .bench_plots import plot_error_vs_factor, plot_error_vs_time
+
+        written.append(plot_error_vs_time(result.summary, out_dir / "error_vs_time.png"))
+        written.append(plot_error_vs_factor(result.summary, out_dir / "error_vs_factor.png"))
+    return written
+
+
+def find_objects(dirs: list[Path] | None) -> list[Path]:
+    """Object folders: each given folder that holds ``mobility.urdf``, or its sub-folders that do;
+    default every object in the shared PartNet folder. SceneError-style ValueError when none."""
+    from .types import SceneError
+
+    roots = dirs or [default_partnet_dir()]
+    found = []
+    for root in roots:
+        root = Path(root)
+        if (root / "mobility.urdf").exists():
+            found.append(root)
+        elif root.is_dir():
+            found.extend(sorted(p for p in root.iterdir() if (p / "mobility.urdf").exists()))
+        else:
+            raise SceneError(f"{root}: --objects folder not found")
+    if not found:
+        raise SceneError(f"{', '.join(map(str, roots))}: no object folder with mobility.urdf")
+    return found
+

@@ -1,0 +1,152 @@
+"""sparseart bench: the grid, the ICP peer, sensor degradations, outputs, stability report."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from sparseart.baselines.icp_peer import PeerOptions, icp_peer, joint_from_transform, register_part_icp
+from sparseart.bench import BenchSetting, evaluate_object
+from sparseart.bench_grid import grid_settings, pareto_front, ratio_note, run_bench
+from sparseart.datasets.scene_writer import add_flying_pixels, perturb_pose
+from sparseart.joints.screw import transform_from_prismatic, transform_from_revolute
+from sparseart.metrics import axis_angle_error_deg, axis_position_error
+from sparseart.stability import DOOR_AXIS, DOOR_ORIGIN, cases, format_report, observe, run_case
+from sparseart.types import LabelledCloud
+
+from conftest import PARTNET_DIR, requires_partnet
+
+
+def test_pareto_front():
+    points = [(1.0, 5.0), (2.0, 1.0), (3.0, 3.0), (0.5, 10.0), (2.0, 1.0), (4.0, 0.5)]
+    assert pareto_front(points) == [0, 1, 3, 4, 5]  # (3, 3) is dominated by (2, 1)
+
+
+def test_grid_is_one_factor_at_a_time():
+    settings, skipped = grid_settings(seed=3)
+    default = settings[0]
+    assert default.name == "default" and default.views == 3 and default.posed and default.depth_noise == 0
+    groups = {"views": {"views"}, "posed": {"posed"}, "depth": {"depth_noise", "flying_pixels"},
+              "pose": {"pose_noise_deg", "pose_noise_m"}, "refine": {"refine"}}
+    for setting in settings[1:]:
+        changed = {k for k, v in vars(setting).items() if k != "name" and v != getattr(default, k)}
+        assert any(changed and changed <= group for group in groups.values()), (setting.name, changed)
+        assert setting.seed == 3
+    names = [s.name for s in settings]
+    assert {"views1", "views2", "views4", "unposed", "depth1%+fly", "depth3%+fly", "pose0.5deg0.5cm"} <= set(names)
+    assert ("refine" in names) != bool(skipped)  # either run or skipped with a reason
+    assert grid_settings(quick=True)[0] == [BenchSetting(name="default")]
+
+
+def test_peer_recovers_revolute_and_prismatic_parts():
+    door_motion = transform_from_revolute(DOOR_AXIS, DOOR_ORIGIN, math.radians(35))
+    start, end = observe("door", door_motion, 1500, 1e-3, seed=1)
+    transform, info = register_part_icp(start, end)
+    joint = joint_from_transform(transform, start, info["fitness"], info["rmse"])
+    assert joint.type == "revolute"
+    assert axis_angle_error_deg(joint.axis, DOOR_AXIS) < 3.0
+    assert axis_position_error(joint.axis, joint.origin, DOOR_AXIS, DOOR_ORIGIN) < 0.03
+    assert abs(math.degrees(joint.angle) - 35.0) < 3.0
+    slide = transform_from_prismatic(np.array([0.0, 0.0, 1.0]), 0.3)
+    start, end = observe("lshape", slide, 1500, 1e-3, seed=2)
+    transform, info = register_part_icp(start, end)
+    joint = joint_from_transform(transform, start, info["fitness"], info["rmse"])
+    assert joint.type == "prismatic" and abs(joint.distance - 0.3) < 0.02
+    assert axis_angle_error_deg(joint.axis, [0.0, 0.0, 1.0]) < 3.0
+    with pytest.raises(ValueError, match="at least"):
+        register_part_icp(start[:5], end)
+
+
+def _cloud(state: str, points: np.ndarray) -> LabelledCloud:
+    n = len(points)
+    return LabelledCloud(state, points, np.full((n, 3), 0.5), np.full(n, -1), np.zeros(n, np.int64),
+                         np.arange(n), np.ones(n))
+
+
+def test_peer_motion_segmentation_without_labels():
+    """Ground-truth-free route: moved points + DBSCAN find the door beside a static body."""
+    motion = transform_from_revolute(DOOR_AXIS, DOOR_ORIGIN, math.radians(40))
+    door_start, door_end = observe("door", motion, 1500, 1e-3, seed=4)
+    rng = np.random.default_rng(4)
+    body = rng.uniform([-1.4, -0.5, -0.6], [-0.9, 0.5, 0.0], (1500, 3))  # static block beside the hinge
+    start, end = _cloud("start", np.concatenate([body, door_start])), _cloud("end", np.concatenate([body, door_end]))
+    result = icp_peer(start, end, options=PeerOptions(segmentation="motion"))
+    assert len(result.joints) == 1
+    assert (result.labels.start_part[:1500] == 0).mean() > 0.95
+    _, joint = result.joints[0]
+    assert joint.type == "revolute" and axis_angle_error_deg(joint.axis, DOOR_AXIS) < 5.0
+    assert [s.name for s in result.stages] == ["peer_segment", "peer_register"]
+    with pytest.raises(ValueError, match="segmentation"):
+        icp_peer(start, end, options=PeerOptions(segmentation="oracle"))
+
+
+def test_flying_pixels_only_touch_depth_edges():
+    depth = np.zeros((40, 60))
+    depth[10:30, 10:30] = 1.0  # near box on an empty background
+    depth[10:30, 30:50] = 2.0  # far box beside it
+    out = add_flying_pixels(depth, 1.0, np.random.default_rng(0))
+    changed = out != depth
+    assert changed.any()
+    interior = np.zeros_like(changed)
+    interior[12:28, 12:28] = interior[12:28, 32:48] = True
+    assert not changed[interior].any()
+    on_step = changed[10:30, 29:31]
+    assert on_step.any() and np.all((out[10:30, 29:31][on_step] >= 1.0) & (out[10:30, 29:31][on_step] <= 2.0))
+    assert np.array_equal(add_flying_pixels(depth, 0.0, np.random.default_rng(0)), depth)
+    with pytest.raises(ValueError, match="flying_pixels"):
+        add_flying_pixels(depth, 1.5, np.random.default_rng(0))
+
+
+def test_pose_noise_has_the_requested_size():
+    pose = transform_from_revolute([0.0, 1.0, 0.0], [0.1, 0.2, 0.3], 0.4)
+    noisy = perturb_pose(pose, 0.5, 0.005, np.random.default_rng(1))
+    relative = noisy[:3, :3] @ pose[:3, :3].T
+    assert math.degrees(math.acos(np.clip((np.trace(relative) - 1) / 2, -1, 1))) == pytest.approx(0.5, abs=1e-6)
+    assert np.linalg.norm(noisy[:3, 3] - pose[:3, 3]) == pytest.approx(0.005)
+
+
+def test_stability_cases_flag_with_the_fitter_thresholds():
+    angle_cases = {c.value: c for c in cases() if c.sweep == "angle"}
+    rows = [run_case(angle_cases[0.5], count=600), run_case(angle_cases[30.0], count=600)]
+    assert rows[0]["flagged"] and any("poorly defined" in w for w in rows[0]["warnings"])
+    assert not rows[1]["flagged"] and rows[1]["axis_deg"] < 3.0 and rows[1]["type_correct"]
+    assert all(math.isfinite(r["condition"]) for r in rows)
+    text = format_report(rows)
+    assert "small_angle_deg 1" in text and "warnings flag [0.5]" in text
+    assert {c.sweep for c in cases(quick=True)} == {"angle", "pivot", "scale", "noise", "outliers"}
+
+
+def test_ratio_note_names_the_more_accurate_method():
+    summary = [{"setting": "default", "method": "sparseart", "axis_deg_median": 0.2, "seconds_median": 4.0,
+                "success_rate": 1.0, "type_accuracy": 1.0},
+               {"setting": "default", "method": "icp_peer", "axis_deg_median": 0.8, "seconds_median": 1.0,
+                "success_rate": 0.5, "type_accuracy": 1.0}]
+    note = ratio_note(summary)
+    assert "x0.25" in note and "x4.00" in note and note.endswith("sparseart")
+
+
+@requires_partnet
+def test_bench_on_one_object_writes_everything(tmp_path):
+    obj = PARTNET_DIR / "toaster_press_103486"
+    result = run_bench([obj], tmp_path, settings=[BenchSetting(name="default")])
+    assert not result.failures, result.failures
+    assert {r["method"] for r in result.rows} == {"sparseart", "icp_peer"}
+    assert {(s["setting"], s["method"]) for s in result.summary} == {("default", "sparseart"), ("default", "icp_peer")}
+    ours = next(s for s in result.summary if s["method"] == "sparseart")
+    assert ours["type_accuracy"] == 1.0 and ours["axis_deg_median"] < 5.0 and ours["fit_seconds_median"] > 0
+    for name in ("rows.csv", "rows.json", "summary.csv", "summary.json", "table.txt", "error_vs_time.png",
+                 "error_vs_factor.png"):
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert len(json.loads((tmp_path / "rows.json").read_text())) == len(result.rows)
+    assert "sparseart vs ICP peer" in (tmp_path / "table.txt").read_text()
+    again = evaluate_object(obj, tmp_path / "scenes", BenchSetting(name="default"))  # the render is cached
+    assert again[0]["render_seconds"] == 0.0
+
+
+def test_cli_bench_rejects_missing_objects(tmp_path, capsys):
+    from sparseart.cli import main
+
+    assert main(["bench", "--objects", str(tmp_path / "nope"), "--out", str(tmp_path / "out")]) == 2
+    assert "--objects folder not found" in capsys.readouterr().err

@@ -1,0 +1,150 @@
+"""URDF / PLY / report-PNG exports: round trips through real readers (yourdfpy, open3d)."""
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from sparseart.joints.screw import apply_transform, transform_from_prismatic, transform_from_revolute
+from sparseart.ply_export import part_colour, write_labelled_clouds
+from sparseart.types import (Articulation, JointEstimate, LabelledCloud, PartLabels, PartResult, PartSpec,
+                             StageRecord)
+from sparseart.urdf_export import write_urdf
+from sparseart.viz import write_report
+
+HINGE_AXIS = np.array([0.0, 0.0, 1.0])
+HINGE_ORIGIN = np.array([0.3, -0.2, 0.4])
+DOOR_ANGLE = -0.7  # negative: the lower limit must be the angle
+SLIDE_AXIS = np.array([1.0, 0.0, 0.0])
+SLIDE_DISTANCE = 0.25
+KNOB_AXIS = np.array([0.0, 1.0, 0.0])
+KNOB_ORIGIN = np.array([0.5, -0.2, 0.6])
+
+
+def _cloud(state: str, points: np.ndarray) -> LabelledCloud:
+    n = len(points)
+    return LabelledCloud(state, points, np.full((n, 3), 0.5), np.full(n, -1), np.zeros(n, np.int64),
+                         np.arange(n), np.ones(n))
+
+
+def _joint(kind: str, axis, origin, amount: float, transform: np.ndarray) -> JointEstimate:
+    uncertainty = {"axis_deg": 0.1, "origin": 0.001, ("angle" if kind == "revolute" else "distance"): 0.01}
+    return JointEstimate(type=kind, axis=np.asarray(axis, float), origin=np.asarray(origin, float),
+                         angle=amount if kind == "revolute" else None,
+                         distance=amount if kind == "prismatic" else None, transform=transform,
+                         uncertainty=uncertainty, residual=0.001, confidence=0.9)
+
+
+@pytest.fixture
+def articulation() -> Articulation:
+    """Static body (0), a door (1, revolute, negative angle), a drawer (2, prismatic) and a knob (3)
+    hinged on the door (parent 1)."""
+    rng = np.random.default_rng(0)
+    body = rng.uniform([-0.5, -0.5, 0.0], [0.5, 0.5, 0.8], (400, 3))
+    door = rng.uniform([0.25, -0.2, 0.0], [0.35, 0.3, 0.8], (300, 3))
+    drawer = rng.uniform([-0.2, -0.4, 0.1], [0.2, -0.3, 0.3], (200, 3))
+    knob = rng.uniform([0.45, -0.25, 0.55], [0.55, -0.15, 0.65], (50, 3))
+    door_motion = transform_from_revolute(HINGE_AXIS, HINGE_ORIGIN, DOOR_ANGLE)
+    drawer_motion = transform_from_prismatic(SLIDE_AXIS, SLIDE_DISTANCE)
+    start = np.concatenate([body, door, drawer, knob])
+    end = np.concatenate([body, apply_transform(door_motion, door), apply_transform(drawer_motion, drawer),
+                          apply_transform(door_motion, knob)])
+    part = np.repeat([0, 1, 2, 3], [400, 300, 200, 50])
+    part[:10] = -1
+    parts = [PartSpec(0, "static"), PartSpec(1, "movable", parent=0), PartSpec(2, "movable", parent=0),
+             PartSpec(3, "movable", parent=1)]
+    labels = PartLabels(parts=parts, start_part=part, end_part=part.copy())
+    joints = {1: _joint("revolute", HINGE_AXIS, HINGE_ORIGIN, DOOR_ANGLE, door_motion),
+              2: _joint("prismatic", SLIDE_AXIS, drawer.mean(0), SLIDE_DISTANCE, drawer_motion),
+              3: _joint("revolute", KNOB_AXIS, KNOB_ORIGIN, 0.3, transform_from_revolute(KNOB_AXIS, KNOB_ORIGIN, 0.3))}
+    results = [PartResult(spec, int((part == spec.id).sum() * 2), joints.get(spec.id)) for spec in parts]
+    stages = [StageRecord("lift", True, 0.1, "x"), StageRecord("label", True, 0.5, "x"),
+              StageRecord("fit", True, 1.2, "x"), StageRecord("refine", False, 0.0, "not requested")]
+    return Articulation("world", "test", "metres", results, stages, ["a warning"], _cloud("start", start),
+                        _cloud("end", end), labels)
+
+
+def test_urdf_round_trip_through_yourdfpy(articulation, tmp_path):
+    yourdfpy = pytest.importorskip("yourdfpy")
+    path = write_urdf(articulation, tmp_path, name="object")
+    model = yourdfpy.URDF.load(str(path))  # loads the PLY visuals too (relative paths)
+    assert model.validate()
+    assert set(model.link_map) == {"base", "part_1", "part_2", "part_3"}
+    assert len(model.scene.geometry) == 4
+    joints = model.joint_map
+    assert joints["joint_1"].type == "revolute" and joints["joint_2"].type == "prismatic"
+    assert joints["joint_3"].parent == "part_1"
+    np.testing.assert_allclose(joints["joint_1"].axis, HINGE_AXIS, atol=1e-9)
+    np.testing.assert_allclose(joints["joint_1"].origin[:3, 3], HINGE_ORIGIN, atol=1e-9)
+    np.testing.assert_allclose(joints["joint_3"].origin[:3, 3], KNOB_ORIGIN - HINGE_ORIGIN, atol=1e-9)
+    assert (joints["joint_1"].limit.lower, joints["joint_1"].limit.upper) == pytest.approx((DOOR_ANGLE, 0.0))
+    assert (joints["joint_2"].limit.lower, joints["joint_2"].limit.upper) == pytest.approx((0.0, SLIDE_DISTANCE))
+
+
+def test_urdf_end_configuration_reproduces_the_end_state(articulation, tmp_path):
+    """Setting each joint to its fitted angle / distance must move every part's visual (its start
+    points in the link frame) onto where the fitted motion takes them: the frame conventions agree."""
+    yourdfpy = pytest.importorskip("yourdfpy")
+    import trimesh
+
+    model = yourdfpy.URDF.load(str(write_urdf(articulation, tmp_path, name="object")))
+    model.update_cfg({"joint_1": DOOR_ANGLE, "joint_2": SLIDE_DISTANCE, "joint_3": 0.0})
+    labels, start = articulation.labels.start_part, articulation.start_cloud.points
+    for part_id, link in ((1, "part_1"), (2, "part_2"), (3, "part_3")):
+        local = np.asarray(trimesh.load(tmp_path / "meshes" / f"{link}.ply").vertices)
+        placed = apply_transform(model.get_transform(link, "base"), local)
+        motion = articulation.parts[1].joint.transform if part_id != 2 else articulation.parts[2].joint.transform
+        np.testing.assert_allclose(placed, apply_transform(motion, start[labels == part_id]), atol=1e-6)
+
+
+def test_urdf_rejects_non_finite_joint(articulation, tmp_path):
+    articulation.parts[1].joint.origin = np.array([np.nan, 0.0, 0.0])
+    with pytest.raises(ValueError, match="part 1"):
+        write_urdf(articulation, tmp_path)
+    assert not any(tmp_path.iterdir())
+
+
+def test_ply_round_trip_through_open3d(articulation, tmp_path):
+    import open3d as o3d
+
+    paths = write_labelled_clouds(articulation, tmp_path)
+    assert [p.name for p in paths] == ["start_parts.ply", "end_parts.ply"]
+    for path, cloud, part in zip(paths, (articulation.start_cloud, articulation.end_cloud),
+                                 (articulation.labels.start_part, articulation.labels.end_part)):
+        legacy = o3d.io.read_point_cloud(str(path))
+        np.testing.assert_array_equal(np.asarray(legacy.points), cloud.points)  # float64 kept exactly
+        colours = np.asarray(legacy.colors)
+        np.testing.assert_allclose(colours[part == 2][0], part_colour(2), atol=1 / 255)
+        assert not np.allclose(colours[part == 1][0], colours[part == 2][0])
+        tensor = o3d.t.io.read_point_cloud(str(path))
+        np.testing.assert_array_equal(tensor.point["part"].numpy().ravel(), part)
+
+
+def test_report_png_is_drawn(articulation, tmp_path):
+    path = write_report(articulation, tmp_path / "report.png")
+    image = cv2.imread(str(path))
+    assert image is not None and image.shape[0] > 300 and image.shape[1] > 900
+    assert float(image.std()) > 10.0  # not a blank canvas
+    blue = np.array(part_colour(1))[::-1] * 255  # BGR of the door colour appears (points or axis)
+    assert np.any(np.all(np.abs(image.astype(float) - blue) < 20, axis=2))
+
+
+def test_exports_need_clouds(articulation, tmp_path):
+    articulation.start_cloud = None
+    with pytest.raises(ValueError, match="--ply"):
+        write_labelled_clouds(articulation, tmp_path)
+    with pytest.raises(ValueError, match="--report"):
+        write_report(articulation, tmp_path / "r.png")
+
+
+def test_cli_run_writes_extras_beside_articulation_json(tiny_scene, tmp_path, capsys):
+    from sparseart.cli import main
+
+    out = tmp_path / "out"
+    assert main(["run", str(tiny_scene), "--out", str(out), "--urdf", "--ply", "--report"]) == 0
+    for name in ("articulation.json", "object.urdf", "meshes/base.ply", "start_parts.ply", "end_parts.ply",
+                 "report.png"):
+        assert (out / name).is_file(), name
+    assert "report.png" in capsys.readouterr().out
+    assert not [p for p in out.rglob("*.tmp")]
+    assert '<link name="base">' in (out / "object.urdf").read_text()
