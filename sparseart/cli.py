@@ -27,7 +27,27 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--out", type=Path, required=True, help="output folder for articulation.json")
     run.add_argument("--joint-type", choices=["auto", "revolute", "prismatic"], default="auto",
                      help="known joint type of every movable part (default: classify)")
-    run.add_argument("--no-masks", action="store_true", help="ignore the scene's masks")
+    run.add_argument("--no-masks", action="store_true", help="ignore masks; split the parts by motion")
+    run.add_argument("--segmenter", default="auto",
+                     help="auto (scene masks when every image has one, else builtin) | given | builtin | "
+                          "sam:ENCODER.onnx,DECODER.onnx | none")
+    onnx = run.add_argument_group("RGB-only scenes (ONNX reconstructor, see models/README.md)")
+    onnx.add_argument("--model", type=Path, default=None, help="reconstructor .onnx (VGGT-style)")
+    onnx.add_argument("--contract", type=Path, default=None,
+                      help="pointmap-onnx/1 contract JSON (default: sidecar, model metadata, built-in preset)")
+    onnx.add_argument("--onnx-mode", choices=["auto", "joint", "per_state"], default="auto",
+                      help="one pass over both states (joint) or one per state, aligned after (default auto)")
+    onnx.add_argument("--conf-threshold", type=float, default=None,
+                      help="drop pixels whose confidence (mapped to [0, 1]) is below this")
+    onnx.add_argument("--threads", type=int, default=0, help="onnxruntime threads (0 = physical cores)")
+    vlm = run.add_argument_group("part labeler")
+    vlm.add_argument("--labeler", choices=["rules", "vlm"], default="rules",
+                     help="rules (default, no model) or vlm (OpenAI-compatible chat API; key from "
+                          "$SPARSEART_VLM_API_KEY)")
+    vlm.add_argument("--vlm-base-url", default=None, help="e.g. http://127.0.0.1:8000/v1 ($SPARSEART_VLM_BASE_URL)")
+    vlm.add_argument("--vlm-model", default=None, help="model name ($SPARSEART_VLM_MODEL)")
+    vlm.add_argument("--vlm-timeout", type=float, default=30.0, help="seconds per request (default 30)")
+    vlm.add_argument("--vlm-pairs", type=int, default=3, help="image pairs to ask about (default 3)")
     run.add_argument("--json", action="store_true", help="print articulation.json instead of a summary")
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--refine", action="store_true",
@@ -95,9 +115,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise SceneError(f"{args.out}: --out exists and is not a folder")
     refine_options, render_states = _refine_settings(args) if args.refine else (None, ())
-    result = run(args.scene, options=RunOptions(joint_type=args.joint_type, use_masks=not args.no_masks,
-                                                seed=args.seed, refine=args.refine,
-                                                refine_options=refine_options))
+    options = RunOptions(joint_type=args.joint_type, use_masks=not args.no_masks, seed=args.seed,
+                         refine=args.refine, refine_options=refine_options, segmenter=args.segmenter,
+                         model=args.model, onnx_options=_onnx_settings(args))
+    result = run(args.scene, labeler=_labeler(args), options=options)
     path = write_articulation(result, args.out)
     if args.refine:
         from .refine.outputs import write_refine_outputs
@@ -111,6 +132,41 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print("\n".join(summary_lines(result)))
         print(f"wrote {path}" + "".join(f", {extra}" for extra in extras))
     return 0
+
+
+def _onnx_settings(args: argparse.Namespace):
+    """OnnxLiftOptions from --contract/--onnx-mode/--conf-threshold/--threads (None without --model)."""
+    if args.model is None:
+        for flag, value in (("--contract", args.contract), ("--conf-threshold", args.conf_threshold)):
+            if value is not None:
+                raise SceneError(f"{flag} needs --model")
+        return None
+    from .lift.onnx_model import OnnxLiftOptions
+
+    if args.threads < 0:
+        raise SceneError(f"--threads must be >= 0, got {args.threads}")
+    try:
+        return OnnxLiftOptions(contract_path=args.contract, mode=args.onnx_mode,
+                               confidence_threshold=args.conf_threshold, threads=args.threads)
+    except ValueError as error:
+        raise SceneError(str(error).replace("OnnxLiftOptions.", "--")) from None
+
+
+def _labeler(args: argparse.Namespace):
+    """The part labeler of --labeler (None = the pipeline's default rule-based one)."""
+    if args.labeler == "rules":
+        return None
+    from .labelers.vlm import VlmLabeler, VlmLabelerConfig
+
+    if args.vlm_pairs < 1:
+        raise SceneError(f"--vlm-pairs must be >= 1, got {args.vlm_pairs}")
+    if not args.vlm_timeout > 0:
+        raise SceneError(f"--vlm-timeout must be > 0, got {args.vlm_timeout}")
+    try:
+        return VlmLabeler(args.vlm_base_url, args.vlm_model, timeout=args.vlm_timeout,
+                          config=VlmLabelerConfig(max_pairs=args.vlm_pairs))
+    except ValueError as error:
+        raise SceneError(f"--labeler vlm: {error}") from None
 
 
 def _write_extras(result, args: argparse.Namespace) -> list[Path]:

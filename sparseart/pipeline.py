@@ -20,6 +20,7 @@ from .types import (JOINT_TYPES, Articulation, JointEstimate, LabelledCloud, Par
                     Scene, SceneError, StageRecord)
 
 MIN_PART_POINTS = 20
+AUTO_SEGMENTER_WITHOUT_MASKS = "builtin"  # what segmenter="auto" uses when the scene has no masks
 
 
 @dataclass
@@ -28,7 +29,13 @@ class RunOptions:
 
     joint_type: "auto" (classify) or a type applied to every movable part.
     reject_flying_pixels: drop depth-edge pixels when lifting.
-    use_masks: transfer the scene's masks onto the points (False: the labeler sees no segments).
+    use_masks: transfer masks onto the points (False: the labeler sees no segments and splits
+        the points by motion).
+    segmenter: "auto" (the scene's masks when every image has one, else the built-in segmenter),
+        "given", "builtin", "sam:ENCODER.onnx,DECODER.onnx" (see :func:`sparseart.segment.make_segmenter`)
+        or "none" (same as ``use_masks=False``).
+    model: an ONNX reconstructor (.onnx) for RGB-only scenes (see models/README.md);
+        onnx_options: its :class:`~sparseart.lift.onnx_model.OnnxLiftOptions`.
     seed: random seed for every sub-sampling step (results are deterministic for a seed).
     refine: run the SPLART refinement (needs torch and the scene's images); refine_options: its
         :class:`~sparseart.refine.RefineOptions`.
@@ -37,6 +44,9 @@ class RunOptions:
     joint_type: str = "auto"
     reject_flying_pixels: bool = True
     use_masks: bool = True
+    segmenter: str = "auto"
+    model: str | Path | None = None
+    onnx_options: object | None = None  # sparseart.lift.onnx_model.OnnxLiftOptions; None = its defaults
     seed: int = 0
     refine: bool = False
     refine_options: object | None = None  # sparseart.refine.RefineOptions (torch); None = its defaults
@@ -72,33 +82,88 @@ def run(scene: Scene | str | Path, labeler: PartLabeler | None = None,
 
     Returns:
         :class:`Articulation` with per-part joints in the scene frame (world frame for posed
-        scenes, else the OpenCV frame of ``start/rgb/000.png``), stage timings and warnings.
+        RGB-D scenes, else the OpenCV frame of ``start/rgb/000.png``), stage timings and warnings.
 
     Raises:
-        SceneError: bad input, one line naming the file.
+        SceneError: bad input, one line naming the file (a missing or unusable model, a view that
+            cannot be registered, too few valid points).
     """
+    from .lift.scene_lift import lift_scene
+
     options = _options(options, overrides)
     clock = StageClock()
     if not isinstance(scene, Scene):
         from .scene import load_scene
 
         with clock.stage("read", "scene folder"):
-            scene = load_scene(scene)
-    warnings = list(scene.warnings)
-    posed = scene.posed
-    with clock.stage("lift", "depth + K given: unprojecting RGB-D (no reconstructor)"):
-        clouds = _lift_rgbd(scene, posed, options, warnings)
-    clock.skip("reconstruct", "depth given: the ONNX reconstructor is not needed")
-    start, end = clouds
-    if not options.use_masks:
+            scene = load_scene(scene, require_depth=options.model is None)
+    _segment(scene, options, clock)
+    with clock.stage("lift", _lift_reason(scene, options)):
+        lifted = lift_scene(scene, reject_flying_pixels=options.reject_flying_pixels, model=options.model,
+                            onnx_options=options.onnx_options, seed=options.seed)
+    for name, seconds in lifted.seconds.items():
+        clock.records.append(StageRecord(f"lift.{name}", True, seconds, _SUBSTAGE_WHY.get(name, name)))
+    if options.model is None:
+        clock.skip("reconstruct", "depth given: the ONNX reconstructor is not needed")
+    warnings = [*scene.warnings, *lifted.warnings]
+    start, end = lifted.start, lifted.end
+    if _segmenter_spec(scene, options) == "none":
         for cloud in (start, end):
             cloud.segment[:] = -1
             cloud.segment_source.clear()
-    frame_kind = "world" if posed else "camera"
-    reference = ("cameras.json world frame" if posed
-                 else "OpenCV frame of start/rgb/" + scene.start[0].rgb_path.name)
-    return _label_and_fit(start, end, labeler, options, clock, warnings, scene=scene, aligned=posed,
-                          frame=(frame_kind, reference, "metres"))
+    return _label_and_fit(start, end, labeler, options, clock, warnings, scene=scene,
+                          alignment=lifted.alignment, frame=lifted.frame, motion_hints=lifted.motion_hints)
+
+
+_SUBSTAGE_WHY = {"load_model": "ONNX reconstructor: session created",
+                 "reconstruct": "ONNX reconstructor: forward pass(es) and decoding",
+                 "register_views": "unposed: views of each state registered to its first view",
+                 "align_states": "unposed: end state aligned to the start state by feature matches"}
+
+
+def _lift_reason(scene: Scene, options: RunOptions) -> str:
+    if options.model is not None:
+        return f"RGB only: ONNX reconstructor {Path(options.model).name}"
+    if scene.posed:
+        return "depth + K + cam_to_world given: unprojecting RGB-D into the world frame (no reconstructor)"
+    return "depth + K given, no cam_to_world: unprojecting per camera, registering views and states"
+
+
+def _segmenter_spec(scene: Scene, options: RunOptions) -> str:
+    """The segmenter a scene gets: "auto" = the scene's masks when every image has one, else the
+    built-in segmenter; ``use_masks=False`` = "none" (the labeler splits by motion)."""
+    if not options.use_masks:
+        return "none"
+    if options.segmenter == "auto":
+        return "given" if scene.has_masks else AUTO_SEGMENTER_WITHOUT_MASKS
+    return options.segmenter
+
+
+def _segment(scene: Scene, options: RunOptions, clock: StageClock) -> None:
+    spec = _segmenter_spec(scene, options)
+    if spec == "none":
+        clock.skip("segment", "masks not used: parts come from a motion split")
+        return
+    if spec == "given":
+        if not scene.has_masks:
+            missing = next(f for f in scene.all_frames if f.mask is None)
+            raise SceneError(f"{missing.rgb_path}: segmenter 'given' needs a mask for every image "
+                             f"({missing.state}/mask/{missing.rgb_path.stem}.png is missing)")
+        clock.skip("segment", "masks given in the scene folder")
+        return
+    from .segment import make_segmenter, segment_scene
+
+    try:
+        segmenter = make_segmenter(spec)
+    except ValueError as error:
+        raise SceneError(f"--segmenter: {error}") from None
+    with clock.stage("segment", f"segmenter {spec.split(':')[0]}: a mask per image"):
+        try:
+            segment_scene(scene, segmenter)
+        except SceneError:
+            raise
+        except ValueError as error:
+            raise SceneError(str(error)) from None
 
 
 def run_clouds(start: LabelledCloud, end: LabelledCloud, labeler: PartLabeler | None = None,
@@ -116,7 +181,8 @@ def run_clouds(start: LabelledCloud, end: LabelledCloud, labeler: PartLabeler | 
     clock = StageClock()
     clock.skip("lift", "clouds given")
     frame = ("world" if aligned else "camera", "frame of the given start cloud", units)
-    return _label_and_fit(start, end, labeler, options, clock, [], scene=None, aligned=aligned, frame=frame)
+    return _label_and_fit(start, end, labeler, options, clock, [], scene=None,
+                          alignment="cameras" if aligned else "none", frame=frame)
 
 
 def _options(options: RunOptions | None, overrides: dict) -> RunOptions:
@@ -132,21 +198,34 @@ def _options(options: RunOptions | None, overrides: dict) -> RunOptions:
 
 def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabeler | None,
                    options: RunOptions, clock: StageClock, warnings: list[str], scene: Scene | None,
-                   aligned: bool, frame: tuple[str, str, str]) -> Articulation:
+                   alignment: str, frame: tuple[str, str, str],
+                   motion_hints: list[np.ndarray] | None = None) -> Articulation:
+    """Label the parts, finish aligning the states, fit the joints, refine when asked.
+
+    alignment: "cameras" (already in one frame), "features" / "model" (roughly aligned: polished
+    by ICP on the labelled static part), "none" (labelled unaligned first, then registered on the
+    static part and labelled again).
+    """
     if labeler is None:
         from .labelers.rules import RuleBasedLabeler
 
         labeler = RuleBasedLabeler()
-    if aligned:
+    hints = {"motion_hints": motion_hints} if motion_hints and _accepts_hints(labeler) else {}
+    if alignment == "cameras":
         clock.skip("align", "cameras given for every image: both states are in one frame")
         with clock.stage("label", f"part labeler: {labeler.name}"):
             labels = labeler.label(start, end, scene, aligned=True)
-    else:
+    elif alignment == "none":
         with clock.stage("align", "unposed: end state registered to start through the static part"):
             first = labeler.label(start, end, scene, aligned=False)
             end = _align_on_static(start, end, first, warnings)
         with clock.stage("label", f"part labeler: {labeler.name} (after alignment)"):
-            labels = labeler.label(start, end, scene, aligned=True)
+            labels = labeler.label(start, end, scene, aligned=True, **hints)
+    else:
+        with clock.stage("label", f"part labeler: {labeler.name} (states aligned by {alignment})"):
+            labels = labeler.label(start, end, scene, aligned=True, **hints)
+        with clock.stage("align", "static part: ICP polish of the " + alignment + " alignment"):
+            end = _polish_on_static(start, end, labels, warnings)
     warnings.extend(labels.warnings)
     known_type = options.joint_type != "auto" or all(p.joint_type for p in labels.movable)
     with clock.stage("fit", "joint type given: classification skipped" if known_type
@@ -163,23 +242,40 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
                         start_cloud=start, end_cloud=end, labels=labels)
 
 
-def _lift_rgbd(scene: Scene, posed: bool, options: RunOptions,
-               warnings: list[str]) -> tuple[LabelledCloud, LabelledCloud]:
-    clouds = []
-    for state in ("start", "end"):
-        frames = scene.frames(state)
-        if not posed and len(frames) > 1:
-            warnings.append(f"unposed scene: only {state}/rgb/{frames[0].rgb_path.name} is used; the "
-                            f"other {len(frames) - 1} view(s) need cam_to_world to be placed")
-            frames = frames[:1]
-        pointmaps = [pointmap_from_depth(f, f.camera.cam_to_world if posed else np.eye(4),
-                                         options.reject_flying_pixels) for f in frames]
-        cloud = build_labelled_cloud(state, frames, pointmaps)
-        if len(cloud) < MIN_PART_POINTS:
-            raise SceneError(f"{scene.root / state}: only {len(cloud)} valid depth points after "
-                             f"removing invalid and flying pixels")
-        clouds.append(cloud)
-    return clouds[0], clouds[1]
+def _accepts_hints(labeler: PartLabeler) -> bool:
+    import inspect
+
+    try:
+        return "motion_hints" in inspect.signature(labeler.label).parameters
+    except (TypeError, ValueError):
+        return False
+
+
+POLISH_WARN_DEG = 3.0  # an ICP polish larger than this means the feature alignment was off
+
+
+def _polish_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabels,
+                      warnings: list[str]) -> LabelledCloud:
+    """Refine a feature/model alignment: robust ICP of the end static points onto the start static
+    points from identity; the end cloud moves by the result (per-point labels are unchanged).
+    O(I N log N) for I ICP iterations over N static points."""
+    from .joints.register import register_rigid
+    from .joints.screw import rotation_angle
+
+    start_static = start.points[labels.start_part == 0]
+    end_static = end.points[labels.end_part == 0]
+    if len(start_static) < MIN_PART_POINTS or len(end_static) < MIN_PART_POINTS:
+        warnings.append("static part too small to polish the alignment of the states")
+        return end
+    registration = register_rigid(end_static, start_static, init=np.eye(4))
+    angle = float(np.degrees(rotation_angle(registration.transform[:3, :3])))
+    if registration.inlier_fraction < 0.5:
+        warnings.append(f"alignment polish is weak: {registration.inlier_fraction:.0%} of the static points "
+                        f"agree; kept the feature alignment")
+        return end
+    if angle > POLISH_WARN_DEG:
+        warnings.append(f"the static part needed a {angle:.1f} deg correction after feature alignment")
+    return _transformed(end, registration.transform)
 
 
 def _transformed(cloud: LabelledCloud, transform: np.ndarray) -> LabelledCloud:

@@ -105,6 +105,8 @@ class Pointmap:
     points: (H*W, 3) float64, row-major pixel order; invalid pixels hold NaN.
     valid: (H*W,) bool.
     confidence: (H*W,) float64 in [0, 1].
+    depth: optional (H, W) float64 depth along the optical axis (frame units, 0 = invalid) for
+        depth-aware mask boundaries when the frame has no depth image (a reconstructor's output).
     """
 
     state: str
@@ -114,6 +116,7 @@ class Pointmap:
     points: np.ndarray
     valid: np.ndarray
     confidence: np.ndarray
+    depth: np.ndarray | None = None  # (H, W) float64 along the optical axis (0 = invalid), when known
 
 
 @dataclass

@@ -74,9 +74,16 @@ class RuleBasedLabeler:
     # ------------------------------------------------------------------ public
 
     def label(self, start: LabelledCloud, end: LabelledCloud, scene: Scene | None = None,
-              aligned: bool = True) -> PartLabels:
-        """Label parts. O(G_s G_e R) with G groups per state and R one registration of
-        <= ``max_points_per_segment`` points, plus O(N log N) KD-tree work."""
+              aligned: bool = True, motion_hints: list[np.ndarray] | None = None) -> PartLabels:
+        """Label parts. O(G_s G_e (R + H S log M)) with G groups per state, R one registration of
+        <= ``max_points_per_segment`` points, H motion hints scored on S samples, plus O(N log N)
+        KD-tree work.
+
+        motion_hints: (4, 4) start->end rigid motions (scene frame) that another stage found, e.g.
+            the feature alignment's candidate moving parts; each is tried as one more hypothesis
+            for every pair of segment groups (a hint that explains a pair better than the pair's own
+            registration is polished by ICP and kept).
+        """
         if len(start) < 10 or len(end) < 10:
             raise ValueError("too few valid points to label parts (need at least 10 per state)")
         config = self.config
@@ -97,7 +104,8 @@ class RuleBasedLabeler:
         end_groups = _merge_across_frames(end, end_segments, radius, config, rng)
         if not start_groups or not end_groups:
             raise ValueError("no usable segments in one of the states (masks empty after filtering)")
-        pairs, extras = _match_groups(start, end, start_groups, end_groups, radius, config, warnings)
+        pairs, extras = _match_groups(start, end, start_groups, end_groups, radius, config, warnings,
+                                      motion_hints or [])
         return _assign_parts(start, end, start_segments, end_segments, start_groups, end_groups, pairs,
                              extras, radius, config, warnings, motion_split=not has_masks)
 
@@ -193,7 +201,8 @@ def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
 
 def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_Group],
                   end_groups: list[_Group], radius: float, config: RuleLabelerConfig,
-                  warnings: list[str]) -> tuple[list[tuple[int, int, np.ndarray, float]], list[tuple[str, int, int]]]:
+                  warnings: list[str], motion_hints: list[np.ndarray] = ()
+                  ) -> tuple[list[tuple[int, int, np.ndarray, float]], list[tuple[str, int, int]]]:
     """Register every start group to every end group and pair them by Hungarian matching.
 
     Returns the pairs (start group, end group, start->end transform (4, 4), score in [0, 1]) and
@@ -227,11 +236,21 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
             registration = register_rigid(source, target, max_points=config.pair_registration_points,
                                           use_fpfh=False, seed=config.seed)
             score = _pair_score(registration.transform, source, target, trees, colours, radius)
+            transform = registration.transform
+            if motion_hints:
+                hint_scores = [_pair_score(h, source, target, trees, colours, radius) for h in motion_hints]
+                best_hint = int(np.argmax(hint_scores))
+                if hint_scores[best_hint] > score:
+                    polished = register_rigid(source, target, init=motion_hints[best_hint],
+                                              max_points=config.pair_registration_points, seed=config.seed)
+                    polished_score = _pair_score(polished.transform, source, target, trees, colours, radius)
+                    score, transform = max((hint_scores[best_hint], motion_hints[best_hint]),
+                                           (polished_score, polished.transform), key=lambda st: st[0])
             # The preference protects well-seen static surfaces; a weak identity overlap (a part
             # mostly hidden in one state, whose visible edge happens to land on itself) earns none.
             preference = IDENTITY_PREFERENCE if best_score >= IDENTITY_TRUSTED_SCORE else 0.0
             if score > best_score + preference:
-                best_score, best_transform = score, registration.transform
+                best_score, best_transform = score, transform
             scores[i, j] = best_score
             transforms[(i, j)] = best_transform
             travel[i, j] = float(np.median(np.linalg.norm(_apply(best_transform, source) - source, axis=1)))

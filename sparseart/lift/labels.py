@@ -66,7 +66,8 @@ def build_labelled_cloud(state: str, frames: list[Frame], pointmaps: list[Pointm
         if frame.mask is not None:
             mask = frame.mask
             if drop_mask_boundaries:
-                mask = np.where(mask_boundary(mask, frame.depth), 0, mask)
+                depth = frame.depth if frame.depth is not None else pointmap.depth
+                mask = np.where(mask_boundary(mask, depth), 0, mask)
             mask_ids = mask.reshape(-1)[pixel]
             foreground = mask_ids > 0
             labels[foreground] = frame.index * SEGMENT_STRIDE + mask_ids[foreground]
