@@ -27,6 +27,9 @@ DEGENERATE_FRACTION = 0.04       # inlier RMS spread along the 2nd principal axi
 PLANAR_FRACTION = 0.02           # ... along the 3rd axis: planar (warn before ICP)
 AMBIGUOUS_RATIO = 0.70           # 2nd motion support / static support above this -> warning
 SCALE_RANGE = (0.2, 5.0)         # with_scale=True: scale outside -> warning
+GEOMETRY_MIN_OVERLAP = 0.5       # geometric fallback: accepted overlap fraction
+MAX_FREE_SPACE_VIOLATION = 0.05 # geometric fallback: share of points in seen-through space
+LOOP_DEG, LOOP_FRACTION = 5.0, 0.05   # loop-closure disagreement that is warned
 
 
 @dataclass
@@ -310,18 +313,74 @@ def _icp_polish(source: np.ndarray, target: np.ndarray, init: np.ndarray, size: 
     return transform if after.fitness >= before.fitness else None
 
 
-def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale: bool,
-                   seed: int = 0) -> tuple[list[np.ndarray], list[str]]:
+def _free_space_violation(points: np.ndarray, frame: Frame, pointmap: Pointmap, size: float) -> float:
+    """Fraction of ``points`` (in ``frame``'s camera frame) that land in front of the surface the
+    camera saw (or on certain background): a wrong registration puts surfaces where this view saw
+    through. O(N + H W)."""
+    import cv2
+
+    h, w = pointmap.height, pointmap.width
+    valid = pointmap.valid.reshape(h, w)
+    depth = np.where(valid, np.nan_to_num(pointmap.points[:, 2].reshape(h, w)), 0.0)
+    background = cv2.dilate(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0
+    points = points[points[:, 2] > 1e-9]
+    uv = points @ frame.camera.K.T
+    col, row = np.rint(uv[:, 0] / uv[:, 2]).astype(int), np.rint(uv[:, 1] / uv[:, 2]).astype(int)
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    if inside.sum() < 30:
+        return 0.0
+    row, col, z = row[inside], col[inside], points[inside, 2]
+    seen = depth[row, col]
+    bad = background[row, col] | ((seen > 0) & (z < seen - 2 * THRESHOLD_FRACTION * size))
+    return float(bad.mean())
+
+
+def _geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray],
+                   size: float, seed: int) -> tuple[Similarity, float, float] | None:
+    """Geometric fallback view j -> view i for metric clouds in their camera frames
+    (:func:`sparseart.joints.register.register_rigid`: PCA/FPFH hypotheses + coloured ICP).
+
+    None for planar clouds (they slide), small overlap, or when either view sees through the other
+    one's surfaces (free-space check, which rejects the turned-around fits of symmetric objects).
+    Returns (model, overlap fraction, edge weight in [0, 1)). O(N log N + H W)."""
+    from .joints.register import register_rigid
+
+    if min(spread(clouds[i])[2], spread(clouds[j])[2]) < PLANAR_FRACTION * size:
+        return None
+    colors = [frames[k].rgb.reshape(-1, 3)[pointmaps[k].valid & np.isfinite(pointmaps[k].points).all(axis=1)]
+              / 255.0 for k in (j, i)]
+    result = register_rigid(clouds[j], clouds[i], colors[0], colors[1], seed=seed)
+    if result.inlier_fraction < GEOMETRY_MIN_OVERLAP:
+        return None
+    model = Similarity.from_matrix(result.transform)
+    violation = max(_free_space_violation(model.apply(clouds[j]), frames[i], pointmaps[i], size),
+                    _free_space_violation(model.inverse().apply(clouds[i]), frames[j], pointmaps[j], size))
+    if violation > MAX_FREE_SPACE_VIOLATION:
+        return None
+    return model, result.inlier_fraction, 0.999 * result.inlier_fraction * (1.0 - violation)
+
+
+def _angle_deg(rotation: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
+
+
+def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale: bool, seed: int = 0,
+                   geometry_fallback: bool = True) -> tuple[list[np.ndarray], list[str]]:
     """Bring the views of one state (one rigid scene) into the camera frame of view 0.
 
     Every pair of views is matched and fitted (:func:`fit_matches`); each view is reached from
     view 0 through the maximum spanning tree of the inlier counts (so a view that only overlaps
-    view 1 is chained through it). With ``with_scale=False`` each view is then polished by
-    point-to-plane ICP against the views already placed. O(V^2 (M^2 + 2000 K) + V N log N).
+    view 1 is chained through it). When features leave a view unreached and the clouds are metric
+    (``with_scale=False``), pairs without a feature fit get a geometric registration
+    (:func:`_geometry_edge`, with a warning naming the view; never for planar clouds); feature
+    edges always rank above geometric ones. Edges off the tree are checked against it (loop
+    closure) and disagreements warned. With ``with_scale=False`` each view is then polished by
+    point-to-plane ICP against the views already placed. O(V^2 (M^2 + 2000 K + N log N)).
 
     Args:
         frames, pointmaps: the V views; pointmaps in each view's OWN camera frame.
         with_scale: per-view scale (relative-scale reconstructions); folded into the transforms.
+        geometry_fallback: allow the geometric registration of pairs without feature matches.
 
     Returns:
         ((4, 4) view_i camera frame -> view_0 camera frame for every view, identity first; warnings).
@@ -339,21 +398,37 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
     features = [view_features(f, p) for f, p in zip(frames, pointmaps)]
     weight = np.zeros((n, n))
     pair_model: dict[tuple[int, int], Similarity] = {}
+    how: dict[tuple[int, int], str] = {}
     reasons: dict[int, list[str]] = {i: [] for i in range(n)}
-    for i in range(n):
-        for j in range(i + 1, n):
-            matches = match_view_features(features[i], features[j])
-            try:
-                model, inliers, _ = fit_matches(matches, with_scale=with_scale, size=size, seed=seed,
-                                                names_a=[features[i].name], names_b=[features[j].name])
-            except AlignmentError as error:
-                reasons[i].append(str(error))
-                reasons[j].append(str(error))
-                continue
-            weight[i, j] = weight[j, i] = float(inliers.sum())
-            pair_model[(i, j)] = model            # view j -> view i
-            pair_model[(j, i)] = model.inverse()  # view i -> view j
+
+    def add(i: int, j: int, model: Similarity, w: float, kind: str) -> None:
+        weight[i, j] = weight[j, i] = w
+        pair_model[(i, j)], pair_model[(j, i)] = model, model.inverse()   # j -> i, i -> j
+        how[(i, j)] = how[(j, i)] = kind
+
+    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    for i, j in pairs:
+        matches = match_view_features(features[i], features[j])
+        try:
+            model, inliers, _ = fit_matches(matches, with_scale=with_scale, size=size, seed=seed,
+                                            names_a=[features[i].name], names_b=[features[j].name])
+        except AlignmentError as error:
+            reasons[i].append(str(error))
+            reasons[j].append(str(error))
+            continue
+        add(i, j, model, 1.0 + float(inliers.sum()), f"{int(inliers.sum())} feature inliers")
     parent = _widest_tree(n, weight)
+    if geometry_fallback and not with_scale and np.any(parent[1:] < 0):
+        for i, j in pairs:
+            if weight[i, j] == 0:
+                edge = _geometry_edge(j, i, frames, pointmaps, clouds, size, seed)
+                if edge is None:
+                    why = "geometric registration rejected (planar, little overlap or sees through)"
+                    reasons[i].append(why)
+                    reasons[j].append(why)
+                else:
+                    add(i, j, edge[0], edge[2], f"geometry only, {edge[1]:.0%} overlap")
+        parent = _widest_tree(n, weight)
     warnings: list[str] = []
     transforms: list[np.ndarray | None] = [np.eye(4)] + [None] * (n - 1)
     order = [0]
@@ -362,15 +437,23 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
                  and transforms[parent[j]] is not None]
         if not grown:
             missing = next(j for j in range(n) if transforms[j] is None)
-            why = "; ".join(r.split(": ", 1)[-1] for r in reasons[missing][:2]) or "no matches"
+            why = "; ".join(dict.fromkeys(r.split(": ", 1)[-1] for r in reasons[missing])) or "no matches"
             raise AlignmentError(f"{frames[missing].rgb_path}: view could not be registered to any "
                                  f"other view of its state ({why})")
         for j in grown:
-            transforms[j] = transforms[parent[j]] @ pair_model[(int(parent[j]), j)].matrix()
-            if parent[j] != 0:
-                warnings.append(f"{frames[j].rgb_path}: registered through "
-                                f"{frames[parent[j]].rgb_path} ({int(weight[j, parent[j]])} inliers)")
+            p = int(parent[j])
+            transforms[j] = transforms[p] @ pair_model[(p, j)].matrix()
+            if p != 0 or not how[(p, j)].endswith("feature inliers"):
+                warnings.append(f"{frames[j].rgb_path}: registered to {frames[p].rgb_path} by "
+                                f"{how[(p, j)]}")
             order.append(j)
+    for i, j in pairs:   # loop closure: edges off the tree must agree with it
+        if weight[i, j] > 0 and parent[j] != i and parent[i] != j:
+            relative = np.linalg.inv(transforms[i]) @ transforms[j] @ np.linalg.inv(pair_model[(i, j)].matrix())
+            angle = _angle_deg(relative[:3, :3] / np.cbrt(np.linalg.det(relative[:3, :3])))
+            if angle > LOOP_DEG or np.linalg.norm(relative[:3, 3]) > LOOP_FRACTION * size:
+                warnings.append(f"{frames[j].rgb_path}: its direct registration to {frames[i].rgb_path} "
+                                f"({how[(i, j)]}) disagrees with the chain by {angle:.1f} deg")
     if not with_scale:
         placed = [clouds[0]]
         for j in order[1:]:
@@ -381,7 +464,7 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
             polished = _icp_polish(clouds[j], target, transforms[j], size)
             if polished is None:
                 warnings.append(f"{frames[j].rgb_path}: ICP polish did not improve the overlap; "
-                                f"kept the feature registration")
+                                f"kept the registration as it was")
             else:
                 transforms[j] = polished
             placed.append(clouds[j] @ transforms[j][:3, :3].T + transforms[j][:3, 3])

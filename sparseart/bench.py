@@ -28,7 +28,8 @@ class BenchSetting:
     (0.01 = 1 %). flying_pixels: fraction of depth-edge pixels given mixed depths.
     pose_noise_deg / pose_noise_m: error of the written camera poses (degrees / object units,
     i.e. metres for metric objects). refine: ask the pipeline for refinement (needs
-    ``RunOptions.refine``). name: label of the setting in tables and plots.
+    ``RunOptions.refine``). segmenter: ``RunOptions.segmenter`` ("auto" = the rendered masks;
+    "builtin" ignores them and segments the images). name: label of the setting in tables and plots.
     """
 
     views: int = 3
@@ -43,6 +44,7 @@ class BenchSetting:
     pose_noise_deg: float = 0.0
     pose_noise_m: float = 0.0
     refine: bool = False
+    segmenter: str = "auto"
     name: str = "default"
 
     def render_key(self) -> str:
@@ -103,7 +105,7 @@ def evaluate_object(object_dir: str | Path, work_dir: str | Path, setting: Bench
     object_dir = Path(object_dir)
     scene_dir = Path(work_dir) / f"{object_dir.name}_{setting.render_key()}"
     gt, render_seconds = render_cached(object_dir, scene_dir, setting)
-    options = RunOptions(use_masks=setting.use_masks, seed=setting.seed)
+    options = RunOptions(use_masks=setting.use_masks, seed=setting.seed, segmenter=setting.segmenter)
     if setting.refine:
         if not hasattr(options, "refine"):
             raise ValueError("bench: setting asks for refinement but RunOptions has no 'refine' option")

@@ -29,8 +29,8 @@ def _parser() -> argparse.ArgumentParser:
                      help="known joint type of every movable part (default: classify)")
     run.add_argument("--no-masks", action="store_true", help="ignore masks; split the parts by motion")
     run.add_argument("--segmenter", default="auto",
-                     help="auto (scene masks when every image has one, else builtin) | given | builtin | "
-                          "sam:ENCODER.onnx,DECODER.onnx | none")
+                     help="auto (scene masks when every image has one, else none) | given | builtin | "
+                          "sam:ENCODER.onnx,DECODER.onnx | none (parts split by motion)")
     onnx = run.add_argument_group("RGB-only scenes (ONNX reconstructor, see models/README.md)")
     onnx.add_argument("--model", type=Path, default=None, help="reconstructor .onnx (VGGT-style)")
     onnx.add_argument("--contract", type=Path, default=None,

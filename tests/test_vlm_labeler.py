@@ -86,9 +86,10 @@ def fake(server):
 
 
 def _clouds(scene):
-    from sparseart.pipeline import RunOptions, _lift_rgbd
+    from sparseart.lift.scene_lift import lift_scene
 
-    return _lift_rgbd(scene, True, RunOptions(), [])
+    lifted = lift_scene(scene)
+    return lifted.start, lifted.end
 
 
 @pytest.fixture(scope="module")
