@@ -321,7 +321,9 @@ def _free_space_violation(points: np.ndarray, frame: Frame, pointmap: Pointmap, 
 
     h, w = pointmap.height, pointmap.width
     valid = pointmap.valid.reshape(h, w)
-    depth = np.where(valid, np.nan_to_num(pointmap.points[:, 2].reshape(h, w)), 0.0)
+    # Nearest seen surface over a 5x5 window: grazing surfaces change depth quickly per pixel.
+    depth = np.where(valid, np.nan_to_num(pointmap.points[:, 2].reshape(h, w)), np.inf)
+    depth = cv2.erode(depth.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.float64)
     background = cv2.dilate(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0
     points = points[points[:, 2] > 1e-9]
     uv = points @ frame.camera.K.T
@@ -331,7 +333,7 @@ def _free_space_violation(points: np.ndarray, frame: Frame, pointmap: Pointmap, 
         return 0.0
     row, col, z = row[inside], col[inside], points[inside, 2]
     seen = depth[row, col]
-    bad = background[row, col] | ((seen > 0) & (z < seen - 2 * THRESHOLD_FRACTION * size))
+    bad = background[row, col] | (np.isfinite(seen) & (z < seen - 2 * THRESHOLD_FRACTION * size))
     return float(bad.mean())
 
 

@@ -37,7 +37,28 @@ def joint_to_dict(part_id: int, parent: int, joint: JointEstimate) -> dict[str, 
     entry["uncertainty"] = {k: _finite(v) for k, v in joint.uncertainty.items()}
     entry["residual"] = _finite(joint.residual)
     entry["confidence"] = _finite(joint.confidence)
+    if "refine" in joint.diagnostics:  # the refinement stage's before/after values and seconds
+        entry["refine"] = _jsonable(joint.diagnostics["refine"])
     return entry
+
+
+def _jsonable(value: Any) -> Any:
+    """Numbers, arrays, dicts and lists as JSON-safe values (non-finite -> None)."""
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _jsonable(value.tolist())
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return _finite(float(value))
+    if value is None or isinstance(value, str):
+        return value
+    return str(value)
 
 
 def articulation_to_dict(result: Articulation) -> dict[str, Any]:

@@ -88,6 +88,7 @@ def test_cli_run_refine_writes_splats_and_renders(small_run, tmp_path, monkeypat
     document = json.loads((out / "articulation.json").read_text())
     assert any(s["name"] == "refine.cross_mobile" and s["ran"] for s in document["stages"])
     part = document["joints"][0]["part"]
+    assert "before" in json.dumps(document["joints"][0]["refine"])  # the stage's before/after values
     splats = read_gaussians_ply(out / f"splats_part{part}_start.ply")
     assert len(splats["means"]) > 0 and np.all((splats["mobility"] >= 0) & (splats["mobility"] <= 1))
     import cv2

@@ -1,0 +1,313 @@
+"""Tests of sparseart.align: Umeyama, RANSAC, SIFT matching, view registration, state alignment.
+
+Synthetic scenes are textured rectangles ray-cast in numpy (exact depth, known poses and
+motions); one PartNet object is rendered (module fixture) for the view registration on real data.
+"""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from sparseart.align import (AlignmentError, Similarity, align_states, match_features, ransac_similarity,
+                             register_views, transform_pointmap, umeyama)
+from sparseart.lift.rgbd import pointmap_from_depth
+from sparseart.types import Camera, Frame, SceneError
+
+PARTNET = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "partnet"
+W, H = 320, 240
+K = np.array([[300.0, 0.0, 159.5], [0.0, 300.0, 119.5], [0.0, 0.0, 1.0]])
+
+
+# ----------------------------------------------------------------------------- helpers
+def rotation(axis, degrees: float) -> np.ndarray:
+    axis = np.asarray(axis, float) / np.linalg.norm(axis)
+    rvec = (np.radians(degrees) * axis).reshape(3, 1)
+    return cv2.Rodrigues(rvec)[0]
+
+
+def rigid(R: np.ndarray, t) -> np.ndarray:
+    out = np.eye(4)
+    out[:3, :3], out[:3, 3] = R, t
+    return out
+
+
+def angle_deg(R: np.ndarray) -> float:
+    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1) / 2, -1, 1))))
+
+
+def look_at(eye, target=(0.0, 0.0, 2.6)) -> np.ndarray:
+    """OpenCV camera at ``eye`` looking at ``target`` in a y-down world."""
+    eye, target = np.asarray(eye, float), np.asarray(target, float)
+    z = (target - eye) / np.linalg.norm(target - eye)
+    x = np.cross([0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    return rigid(np.stack([x, np.cross(z, x), z], axis=1), eye)
+
+
+def texture(seed: int, kind: str = "noise") -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    if kind == "flat":
+        return np.full((256, 256, 3), 150, np.uint8)
+    small = rng.integers(0, 256, (32, 32, 3)).astype(np.uint8)
+    tex = cv2.resize(small, (256, 256), interpolation=cv2.INTER_CUBIC)
+    if kind == "strip":  # texture only on a thin horizontal band
+        flat = np.full_like(tex, 150)
+        flat[124:132] = tex[124:132]
+        tex = flat
+    return tex
+
+
+class Rect:
+    """A textured rectangle: centre, unit in-plane axes u, v, half extents, texture, moving flag."""
+
+    def __init__(self, centre, u, v, half_u, half_v, tex, moving=False):
+        self.centre, self.u, self.v = (np.asarray(a, float) for a in (centre, u, v))
+        self.half = (half_u, half_v)
+        self.tex, self.moving = tex, moving
+
+    def moved(self, motion: np.ndarray) -> "Rect":
+        return Rect(motion[:3, :3] @ self.centre + motion[:3, 3], motion[:3, :3] @ self.u,
+                    motion[:3, :3] @ self.v, *self.half, self.tex, self.moving)
+
+
+def render(rects: list[Rect], c2w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Ray-cast rectangles: (H, W, 3) uint8 RGB and (H, W) depth along the optical axis (0 = none)."""
+    rows, cols = np.mgrid[0:H, 0:W].astype(float)
+    rays_cam = np.stack([(cols - K[0, 2]) / K[0, 0], (rows - K[1, 2]) / K[1, 1], np.ones_like(cols)], -1)
+    rays = rays_cam @ c2w[:3, :3].T
+    origin = c2w[:3, 3]
+    depth = np.zeros((H, W))
+    rgb = np.full((H, W, 3), 90, np.uint8)
+    for rect in rects:
+        normal = np.cross(rect.u, rect.v)
+        denom = rays @ normal
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((rect.centre - origin) @ normal) / denom
+        hit = origin + rays * t[..., None]
+        a = (hit - rect.centre) @ rect.u / rect.half[0]
+        b = (hit - rect.centre) @ rect.v / rect.half[1]
+        inside = np.isfinite(t) & (t > 0) & (np.abs(a) <= 1) & (np.abs(b) <= 1)
+        closer = inside & ((depth == 0) | (t < depth))
+        mapx = ((a + 1) / 2 * 255).astype(np.float32)
+        mapy = ((b + 1) / 2 * 255).astype(np.float32)
+        colour = cv2.remap(rect.tex, np.nan_to_num(mapx), np.nan_to_num(mapy), cv2.INTER_LINEAR)
+        rgb[closer] = colour[closer]
+        depth[closer] = t[closer]
+    return rgb, depth
+
+
+def frame_of(rgb, depth, state: str, index: int) -> tuple[Frame, object]:
+    frame = Frame(state=state, index=index, rgb_path=Path(f"{state}/rgb/{index:03d}.png"), rgb=rgb,
+                  depth=depth, camera=Camera(K.copy(), W, H))
+    return frame, pointmap_from_depth(frame, np.eye(4))
+
+
+def room(kind: str = "noise", door: bool = True, door_half=(0.4, 0.6)) -> list[Rect]:
+    """A corner of a room (back wall, floor, side wall) and a door panel in front of the wall."""
+    rects = [Rect((0, 0, 3.2), (1, 0, 0), (0, 1, 0), 1.6, 1.2, texture(1, kind)),
+             Rect((0, 1.2, 2.4), (1, 0, 0), (0, 0, 1), 1.6, 0.8, texture(2, kind)),
+             Rect((-1.6, 0, 2.4), (0, 0, 1), (0, 1, 0), 0.8, 1.2, texture(3, kind))]
+    if door:
+        rects.append(Rect((0.2 + door_half[0], 0.1, 2.5), (1, 0, 0), (0, 1, 0), *door_half,
+                          texture(4, kind), moving=True))
+    return rects
+
+
+DOOR_MOTION = rigid(rotation((0, 1, 0), 30.0), [0, 0, 0])
+DOOR_MOTION[:3, 3] = np.array([0.2, 0, 2.5]) - DOOR_MOTION[:3, :3] @ np.array([0.2, 0, 2.5])  # hinge x=0.2
+DRAWER_MOTION = rigid(np.eye(3), [0.0, 0.0, -0.3])
+
+
+def two_states(rects: list[Rect], motion: np.ndarray, start_eye=(-0.3, -0.4, 0.0),
+               end_eye=(0.4, -0.2, 0.2)):
+    """One view per state: (start frame, pointmap, c2w), (end frame, pointmap, c2w)."""
+    c2w_s, c2w_e = look_at(start_eye), look_at(end_eye)
+    end_rects = [r.moved(motion) if r.moving else r for r in rects]
+    fs, ps = frame_of(*render(rects, c2w_s), "start", 0)
+    fe, pe = frame_of(*render(end_rects, c2w_e), "end", 0)
+    return (fs, ps, c2w_s), (fe, pe, c2w_e)
+
+
+# ----------------------------------------------------------------------------- geometry
+def test_similarity_matrix_apply_inverse():
+    sim = Similarity(2.5, rotation((1, 2, 3), 40), np.array([1.0, -2.0, 0.5]))
+    pts = np.random.default_rng(0).normal(size=(20, 3))
+    homogeneous = np.c_[pts, np.ones(20)] @ sim.matrix().T
+    np.testing.assert_allclose(sim.apply(pts), homogeneous[:, :3], atol=1e-12)
+    np.testing.assert_allclose(sim.inverse().apply(sim.apply(pts)), pts, atol=1e-12)
+    back = Similarity.from_matrix(sim.matrix())
+    assert back.scale == pytest.approx(2.5) and np.allclose(back.rotation, sim.rotation)
+
+
+@pytest.mark.parametrize("scale", [1e-3, 0.37, 1.0, 1e3])
+@pytest.mark.parametrize("with_scale", [True, False])
+def test_umeyama_exact(scale, with_scale):
+    rng = np.random.default_rng(1)
+    source = rng.normal(size=(50, 3)) * scale
+    true = Similarity(2.0 if with_scale else 1.0, rotation((0.3, -1, 0.2), 123), rng.normal(size=3) * scale)
+    model = umeyama(source, true.apply(source), with_scale)
+    assert model.scale == pytest.approx(true.scale, rel=1e-9)
+    assert angle_deg(model.rotation.T @ true.rotation) < 1e-6
+    np.testing.assert_allclose(model.translation, true.translation, atol=1e-9 * scale)
+    assert np.linalg.det(model.rotation) == pytest.approx(1.0)
+
+
+def test_umeyama_weights_ignore_zero_weight_outliers_and_fix_reflection():
+    rng = np.random.default_rng(2)
+    source = rng.normal(size=(40, 3))
+    true = Similarity(0.5, rotation((1, 0, 0), 70), np.array([0.0, 1.0, 2.0]))
+    target = true.apply(source)
+    target[:10] += rng.normal(size=(10, 3)) * 5
+    weights = np.r_[np.zeros(10), np.ones(30)]
+    model = umeyama(source, target, True, weights=weights)
+    assert model.scale == pytest.approx(0.5, rel=1e-9) and angle_deg(model.rotation.T @ true.rotation) < 1e-6
+    mirrored = source * np.array([1.0, 1.0, -1.0])      # best fit would be a reflection
+    assert np.linalg.det(umeyama(source, mirrored, False).rotation) == pytest.approx(1.0)
+
+
+def test_ransac_recovers_similarity_with_60_percent_outliers():
+    rng = np.random.default_rng(3)
+    source = rng.uniform(-1, 1, size=(500, 3))
+    true = Similarity(3.0, rotation((1, 1, 0), 50), np.array([0.2, 0.0, -1.0]))
+    target = true.apply(source) + rng.normal(scale=0.002, size=(500, 3))
+    outliers = rng.permutation(500)[:300]
+    target[outliers] = rng.uniform(-4, 4, size=(300, 3))
+    model, inliers = ransac_similarity(source, target, with_scale=True, threshold=0.02, seed=0)
+    assert model.scale == pytest.approx(3.0, rel=2e-3)
+    assert angle_deg(model.rotation.T @ true.rotation) < 0.2
+    truth = np.ones(500, bool)
+    truth[outliers] = False
+    assert (inliers == truth).mean() > 0.99
+
+
+def test_ransac_without_consensus_raises():
+    rng = np.random.default_rng(4)
+    with pytest.raises(AlignmentError, match="consensus"):
+        ransac_similarity(rng.normal(size=(60, 3)), rng.normal(size=(60, 3)), with_scale=False,
+                          threshold=0.01, min_inliers=9)
+
+
+# ----------------------------------------------------------------------------- synthetic scenes
+def test_match_features_lifts_consistent_3d_matches():
+    (fs, ps, c2w_s), (fe, pe, c2w_e) = two_states(room(door=False), np.eye(4))
+    matches = match_features(fs, ps, fe, pe)
+    assert len(matches) > 50 and matches.n_ratio_passed >= len(matches)
+    truth = np.linalg.inv(c2w_s) @ c2w_e
+    moved = matches.points_b @ truth[:3, :3].T + truth[:3, 3]
+    assert np.median(np.linalg.norm(moved - matches.points_a, axis=1)) < 0.01
+    only_left = np.zeros((H, W), bool)
+    only_left[:, : W // 2] = True
+    masked = match_features(fs, ps, fe, pe, mask_a=only_left)
+    assert 0 < len(masked) < len(matches) and masked.pixels_a[:, 0].max() < W // 2 + 1
+
+
+def test_register_views_synthetic_three_views():
+    rects = room(door=False)
+    c2ws = [look_at(e) for e in ((-0.5, -0.4, 0.0), (0.0, -0.3, 0.1), (0.5, -0.5, 0.0))]
+    views = [frame_of(*render(rects, c), "start", i) for i, c in enumerate(c2ws)]
+    transforms, warnings = register_views([v[0] for v in views], [v[1] for v in views], with_scale=False)
+    assert np.allclose(transforms[0], np.eye(4))
+    for c2w, got in zip(c2ws[1:], transforms[1:]):
+        true = np.linalg.inv(c2ws[0]) @ c2w
+        assert angle_deg(got[:3, :3].T @ true[:3, :3]) < 0.3
+        assert np.linalg.norm(got[:3, 3] - true[:3, 3]) < 0.01
+
+
+def test_align_states_recovers_known_similarity_and_warns_on_scale():
+    (fs, ps, c2w_s), (fe, pe, c2w_e) = two_states(room(), DOOR_MOTION)
+    s = 3.7   # a relative-scale reconstruction of the end state
+    scaled = transform_pointmap(pe, np.diag([s, s, s, 1.0]))
+    result = align_states([fs], [ps], [fe], [scaled], with_scale=True)
+    truth = np.linalg.inv(c2w_s) @ c2w_e @ np.diag([1 / s, 1 / s, 1 / s, 1.0])
+    assert result.transform.scale == pytest.approx(1 / s, rel=0.01)
+    assert angle_deg(result.transform.rotation.T @ truth[:3, :3] * s) < 0.5
+    assert np.linalg.norm(result.transform.translation - truth[:3, 3]) < 0.02
+    assert result.rmse < 0.03 and 0.3 < result.inliers.mean() < 1.0
+    assert not any("scale" in w for w in result.warnings)
+    huge = align_states([fs], [ps], [fe], [transform_pointmap(pe, np.diag([10.0, 10, 10, 1]))],
+                        with_scale=True)
+    assert any("outside [0.2, 5" in w for w in huge.warnings)
+
+
+@pytest.mark.parametrize("motion", [DOOR_MOTION, DRAWER_MOTION], ids=["door", "drawer"])
+def test_align_states_candidates_contain_the_moving_part(motion):
+    (fs, ps, c2w_s), (fe, pe, c2w_e) = two_states(room(), motion)
+    result = align_states([fs], [ps], [fe], [pe], with_scale=False)
+    truth = np.linalg.inv(c2w_s) @ c2w_e
+    assert angle_deg(result.transform.rotation.T @ truth[:3, :3]) < 0.5
+    expected = np.linalg.inv(c2w_s) @ motion @ c2w_s     # start -> end door motion, start camera frame
+    assert result.candidates, result.warnings
+    best = result.candidates[0]
+    assert angle_deg(best.transform[:3, :3].T @ expected[:3, :3]) < 2.0
+    probe = best.points
+    err = np.linalg.norm(probe @ best.transform[:3, :3].T + best.transform[:3, 3]
+                         - (probe @ expected[:3, :3].T + expected[:3, 3]), axis=1)
+    assert np.median(err) < 0.02 and best.support >= 8
+    assert all(a.support >= b.support for a, b in zip(result.candidates, result.candidates[1:]))
+
+
+# ----------------------------------------------------------------------------- error paths
+def test_textureless_images_are_a_clear_error():
+    (fs, ps, _), (fe, pe, _) = two_states(room("flat"), DOOR_MOTION)
+    with pytest.raises(AlignmentError, match="too few feature matches") as info:
+        align_states([fs], [ps], [fe], [pe], with_scale=False)
+    message = str(info.value)
+    assert "start/rgb/000.png" in message and "end/rgb/000.png" in message and "\n" not in message
+    assert isinstance(info.value, SceneError)
+    wall = [Rect((0, 0, 3.0), (1, 0, 0), (0, 1, 0), 2.0, 1.5, texture(0, "flat"))]   # planar: no fallback
+    views = [frame_of(*render(wall, look_at(e, (0, 0, 3.0))), "start", i)
+             for i, e in enumerate(((-0.2, 0, 0), (0.2, 0, 0)))]
+    with pytest.raises(AlignmentError, match=r"start/rgb/001.png: view could not be registered"):
+        register_views([v[0] for v in views], [v[1] for v in views], with_scale=False)
+
+
+def test_collinear_matches_are_degenerate():
+    wall = [Rect((0, 0, 3.0), (1, 0, 0), (0, 1, 0), 2.0, 1.5, texture(5, "strip"))]
+    c2w_s, c2w_e = look_at((-0.2, 0, 0), (0, 0, 3)), look_at((0.2, 0.05, 0), (0, 0, 3))
+    fs, ps = frame_of(*render(wall, c2w_s), "start", 0)
+    fe, pe = frame_of(*render(wall, c2w_e), "end", 0)
+    with pytest.raises(AlignmentError, match="degenerate"):
+        align_states([fs], [ps], [fe], [pe], with_scale=False)
+
+
+def test_ambiguous_static_part_is_warned():
+    # Half the texture moves (a big panel pulled out like a drawer): the dominant motion is unclear.
+    rects = [Rect((-0.8, 0, 3.0), (1, 0, 0), (0, 1, 0), 0.75, 1.0, texture(6)),
+             Rect((0.8, 0, 2.6), (1, 0, 0), (0, 1, 0), 0.75, 1.0, texture(7), moving=True),
+             Rect((0, 1.0, 2.6), (1, 0, 0), (0, 0, 1), 1.6, 0.6, texture(8, "flat"))]
+    (fs, ps, _), (fe, pe, _) = two_states(rects, rigid(np.eye(3), [0, 0, -0.25]),
+                                          start_eye=(-0.1, -0.3, 0.0), end_eye=(0.1, -0.3, 0.1))
+    result = align_states([fs], [ps], [fe], [pe], with_scale=False)
+    assert any("ambiguous" in w for w in result.warnings), result.warnings
+
+
+# ----------------------------------------------------------------------------- PartNet render
+@pytest.fixture(scope="module")
+def partnet_scene(tmp_path_factory):
+    obj = PARTNET / "storage_40147"
+    if not (obj / "mobility.urdf").is_file():
+        pytest.skip(f"PartNet-Mobility objects not found at {PARTNET}")
+    from sparseart.datasets.partnet import render_partnet_scene
+    from sparseart.scene import load_scene
+
+    root = tmp_path_factory.mktemp("align") / "storage"
+    render_partnet_scene(obj, root, views=3, seed=0, posed=False, same_cameras=False)
+    return load_scene(root), json.loads((root / "gt.json").read_text())
+
+
+def test_register_views_partnet_recovers_true_relative_poses(partnet_scene):
+    scene, gt = partnet_scene
+    assert not scene.posed
+    for state in ("start", "end"):
+        frames = scene.frames(state)
+        pointmaps = [pointmap_from_depth(f, np.eye(4)) for f in frames]
+        transforms, _ = register_views(frames, pointmaps, with_scale=False)
+        c2w = [np.asarray(c, float) for c in gt["cameras"][state]]
+        for i in range(1, len(frames)):
+            true = np.linalg.inv(c2w[0]) @ c2w[i]
+            assert angle_deg(transforms[i][:3, :3].T @ true[:3, :3]) < 1.0, (state, i)
+            assert np.linalg.norm(transforms[i][:3, 3] - true[:3, 3]) < 0.01 * gt["scale"], (state, i)
