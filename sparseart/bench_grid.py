@@ -43,7 +43,8 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
 
     default: 3 views, posed, no depth noise, no pose noise, no refinement; then views 1 / 2 / 4,
     unposed, depth noise 1 % and 3 % (each with flying pixels on half the depth-edge pixels),
-    pose noise 0.5 deg + 0.5 cm (object units), refinement (only when ``RunOptions.refine`` exists).
+    pose noise 0.5 deg + 0.5 cm (object units), mask ids scrambled per image, no masks (motion
+    split), refinement (only when ``RunOptions.refine`` exists).
     ``quick``: the default setting only.
     """
     base = BenchSetting(seed=seed, name="default")
@@ -53,7 +54,9 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
                 replace(base, posed=False, name="unposed"),
                 replace(base, depth_noise=0.01, flying_pixels=FLYING_FRACTION, name="depth1%+fly"),
                 replace(base, depth_noise=0.03, flying_pixels=FLYING_FRACTION, name="depth3%+fly"),
-                replace(base, pose_noise_deg=0.5, pose_noise_m=0.005, name="pose0.5deg0.5cm")]
+                replace(base, pose_noise_deg=0.5, pose_noise_m=0.005, name="pose0.5deg0.5cm"),
+                replace(base, scramble_masks=True, name="masks-scrambled"),
+                replace(base, use_masks=False, name="no-masks")]
     skipped = []
     if refine_available():
         settings.append(replace(base, refine=True, name="refine"))

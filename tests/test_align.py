@@ -106,7 +106,7 @@ def frame_of(rgb, depth, state: str, index: int) -> tuple[Frame, object]:
     return frame, pointmap_from_depth(frame, np.eye(4))
 
 
-def room(kind: str = "noise", door: bool = True, door_half=(0.4, 0.6)) -> list[Rect]:
+def room(kind: str = "noise", door: bool = True, door_half=(0.25, 0.4)) -> list[Rect]:
     """A corner of a room (back wall, floor, side wall) and a door panel in front of the wall."""
     rects = [Rect((0, 0, 3.2), (1, 0, 0), (0, 1, 0), 1.6, 1.2, texture(1, kind)),
              Rect((0, 1.2, 2.4), (1, 0, 0), (0, 0, 1), 1.6, 0.8, texture(2, kind)),
@@ -151,7 +151,7 @@ def test_umeyama_exact(scale, with_scale):
     true = Similarity(2.0 if with_scale else 1.0, rotation((0.3, -1, 0.2), 123), rng.normal(size=3) * scale)
     model = umeyama(source, true.apply(source), with_scale)
     assert model.scale == pytest.approx(true.scale, rel=1e-9)
-    assert angle_deg(model.rotation.T @ true.rotation) < 1e-6
+    assert np.abs(model.rotation - true.rotation).max() < 1e-9
     np.testing.assert_allclose(model.translation, true.translation, atol=1e-9 * scale)
     assert np.linalg.det(model.rotation) == pytest.approx(1.0)
 
@@ -164,7 +164,7 @@ def test_umeyama_weights_ignore_zero_weight_outliers_and_fix_reflection():
     target[:10] += rng.normal(size=(10, 3)) * 5
     weights = np.r_[np.zeros(10), np.ones(30)]
     model = umeyama(source, target, True, weights=weights)
-    assert model.scale == pytest.approx(0.5, rel=1e-9) and angle_deg(model.rotation.T @ true.rotation) < 1e-6
+    assert model.scale == pytest.approx(0.5, rel=1e-9) and np.abs(model.rotation - true.rotation).max() < 1e-9
     mirrored = source * np.array([1.0, 1.0, -1.0])      # best fit would be a reflection
     assert np.linalg.det(umeyama(source, mirrored, False).rotation) == pytest.approx(1.0)
 
@@ -275,14 +275,13 @@ def test_collinear_matches_are_degenerate():
 
 
 def test_ambiguous_static_part_is_warned():
-    # Half the texture moves (a big panel pulled out like a drawer): the dominant motion is unclear.
-    rects = [Rect((-0.8, 0, 3.0), (1, 0, 0), (0, 1, 0), 0.75, 1.0, texture(6)),
-             Rect((0.8, 0, 2.6), (1, 0, 0), (0, 1, 0), 0.75, 1.0, texture(7), moving=True),
-             Rect((0, 1.0, 2.6), (1, 0, 0), (0, 0, 1), 1.6, 0.6, texture(8, "flat"))]
-    (fs, ps, _), (fe, pe, _) = two_states(rects, rigid(np.eye(3), [0, 0, -0.25]),
-                                          start_eye=(-0.1, -0.3, 0.0), end_eye=(0.1, -0.3, 0.1))
+    # A big frontal door gets almost as many matches as the static room (here: 201 vs 252).
+    (fs, ps, _), (fe, pe, _) = two_states(room(door_half=(0.4, 0.6)), DOOR_MOTION)
     result = align_states([fs], [ps], [fe], [pe], with_scale=False)
+    assert result.candidates and result.candidates[0].support > 0.7 * result.inliers.sum()
     assert any("ambiguous" in w for w in result.warnings), result.warnings
+    (fs, ps, _), (fe, pe, _) = two_states(room(), DOOR_MOTION)   # small door: no warning
+    assert not any("ambiguous" in w for w in align_states([fs], [ps], [fe], [pe], with_scale=False).warnings)
 
 
 # ----------------------------------------------------------------------------- PartNet render

@@ -31,6 +31,7 @@ from sparseart.joints.register import register_rigid
 from sparseart.joints.screw import (apply_transform, make_transform, perturb_axis, screw_from_transform,
                                     tangent_basis, transform_from_prismatic, transform_from_revolute, unit)
 from sparseart.joints.select import select_joint_type
+from sparseart.joints.uncertainty import block_jackknife_covariance, spatial_blocks
 from sparseart.sampling import random_subset
 from sparseart.types import JointEstimate
 
@@ -67,6 +68,7 @@ class FitConfig:
     far_pivot_factor: float = 5.0
     small_angle_deg: float = 1.0
     few_points: int = 50
+    uncertainty_resamples: int = 6
     robust_loss: str = "soft_l1"
     pair_tau_factor: float = 3.0
     normal_gate_deg: float = 45.0
@@ -205,8 +207,11 @@ class _Problem:
                              max_nfev=max_nfev, method="trf")
 
 
-def _covariance(problem: _Problem, x: np.ndarray, f_scale: float, factor: float) -> tuple[np.ndarray, float]:
-    """cov = factor * s^2 (J_w^T J_w)^+ with soft_l1 IRLS weights; returns (cov, condition number).
+def _covariance(problem: _Problem, x: np.ndarray, f_scale: float,
+                factor: float) -> tuple[np.ndarray, float, np.ndarray, np.ndarray]:
+    """cov = factor * s^2 (J_w^T J_w)^+ with soft_l1 IRLS weights; returns (cov, condition number,
+    J_w (R, p), r_w (R,)) -- the robust-weighted Jacobian and residual rows, reused by the block
+    jackknife (``uncertainty.block_jackknife_covariance``).
 
     J by central differences (2p residual evaluations) with the Chamfer neighbours frozen at ``x``
     (otherwise a neighbour switch inside the step fakes a huge derivative); s^2 from the align
@@ -232,7 +237,7 @@ def _covariance(problem: _Problem, x: np.ndarray, f_scale: float, factor: float)
     singular = np.linalg.svd(weighted_jacobian, compute_uv=False)
     condition = float(singular[0] / singular[-1]) if singular[-1] > 0 else float("inf")
     normal = weighted_jacobian.T @ weighted_jacobian
-    return factor * variance * np.linalg.pinv(normal, rcond=1e-12), condition
+    return factor * variance * np.linalg.pinv(normal, rcond=1e-12), condition, weighted_jacobian, residual * robust
 
 
 def _fit_model(model, start, end, start_normals, end_normals, config: FitConfig,
@@ -282,8 +287,11 @@ def _fit_model(model, start, end, start_normals, end_normals, config: FitConfig,
     f_scale = max(1.4826 * float(np.median(pair_distance)) / np.sqrt(3.0), tau / 6.0, 1e-9)
     result = problem.solve(x, f_scale=f_scale, max_nfev=50)
     x = result.x
-    covariance, condition = _covariance(problem, x, f_scale, config.correlation_factor)
+    covariance, condition, weighted_jacobian, weighted_residual = _covariance(problem, x, f_scale,
+                                                                             config.correlation_factor)
     rotation, translation = model.motion(x)
+    resample_covariance, blocks_used = _resample_covariance(problem, rotation, translation, weighted_jacobian,
+                                                            weighted_residual, config)
     pair_residual = np.linalg.norm(match_start[rows] @ rotation.T + translation - match_end[cols], axis=1)
     # Truncated symmetric Chamfer RSS on the common chamfer subsamples (comparable across models).
     # Point-to-plane distances of the Chamfer neighbours: free of the sampling-spacing floor of
@@ -295,10 +303,29 @@ def _fit_model(model, start, end, start_normals, end_normals, config: FitConfig,
     backward = np.abs(np.einsum("ij,ij->i", chamfer_end - moved_chamfer[backward_index],
                                 chamfer_normals[0][backward_index] @ rotation.T))
     return {"model": model, "x": x, "covariance": covariance, "condition": condition,
+            "resample_covariance": resample_covariance, "resample_blocks": blocks_used,
             "rotation": rotation, "translation": translation, "pair_residual": pair_residual,
             "tau": tau, "chamfer": np.concatenate([forward, backward]),
             "match_fraction": len(rows) / max(min(len(match_start), len(match_end)), 1),
             "pairs": len(rows), "pair_start": match_start[rows], "pair_end": match_end[cols]}
+
+
+def _resample_covariance(problem: _Problem, rotation: np.ndarray, translation: np.ndarray, jacobian: np.ndarray,
+                         residual: np.ndarray, config: FitConfig) -> tuple[np.ndarray, int]:
+    """Spatial block-jackknife covariance of the converged fit (see ``uncertainty``); zeros when
+    ``config.uncertainty_resamples`` < 2. Every residual row is assigned to the block of its point
+    in the start frame (end-state Chamfer points mapped back by the fitted motion). Uses its own
+    random generator, so the fit's subsamples and estimates do not change."""
+    p = jacobian.shape[1]
+    if config.uncertainty_resamples < 2:
+        return np.zeros((p, p)), 0
+    locations = [problem.pair_start]
+    if problem.chamfer:
+        locations += [problem.chamfer_start, (problem.chamfer_end - translation) @ rotation]
+    points = np.concatenate(locations)
+    rng = np.random.default_rng(config.seed + 104729)
+    blocks = spatial_blocks(points, config.uncertainty_resamples, rng)
+    return block_jackknife_covariance(jacobian, residual, np.repeat(blocks, 3))
 
 
 def _initial_models(transform: np.ndarray, start: np.ndarray) -> tuple[_Revolute, _Prismatic, dict]:
@@ -428,13 +455,31 @@ def _choose(fits: dict, config: FitConfig, diagnostics: dict) -> str:
     return decision.joint_type
 
 
+def _axis_sigma_deg(covariance: np.ndarray) -> float:
+    """1-sigma axis direction error (deg) from the two tangent variances."""
+    return float(np.degrees(np.sqrt(max(covariance[0, 0] + covariance[1, 1], 0.0))))
+
+
+def _revolute_sigma(covariance: np.ndarray, scale: float) -> dict[str, float]:
+    return {"axis_deg": _axis_sigma_deg(covariance),
+            "origin": float(np.sqrt(max(covariance[2, 2] + covariance[3, 3], 0.0))) * scale,
+            "angle": float(np.sqrt(max(covariance[4, 4], 0.0)))}
+
+
+def _prismatic_sigma(covariance: np.ndarray, scale: float, origin_sigma: float) -> dict[str, float]:
+    return {"axis_deg": _axis_sigma_deg(covariance), "origin": float(origin_sigma),
+            "distance": float(np.sqrt(max(covariance[2, 2], 0.0))) * scale}
+
+
 def _estimate(kind: str, fit: dict, start_n: np.ndarray, scale: float, centre: np.ndarray,
               config: FitConfig, warnings: list[str], diagnostics: dict) -> JointEstimate:
     """Convert a normalised fit into a JointEstimate in input units, with warnings."""
-    model, x, covariance = fit["model"], fit["x"], fit["covariance"]
+    model, x = fit["model"], fit["x"]
+    jacobian_covariance = fit["covariance"]
+    covariance = jacobian_covariance + fit["resample_covariance"]
     reference = start_n.mean(axis=0)
     part_radius = float(np.sqrt(np.mean(np.sum((start_n - reference) ** 2, axis=1))))
-    axis_sigma = float(np.degrees(np.sqrt(max(covariance[0, 0] + covariance[1, 1], 0.0))))
+    axis_sigma = _axis_sigma_deg(covariance)
     residual = float(np.sqrt(np.mean(fit["pair_residual"] ** 2))) if fit["pairs"] else float("inf")
     eigen = np.sort(np.linalg.eigvalsh(np.cov((start_n - reference).T)))[::-1]
     if eigen[1] < 1e-4 * eigen[0]:
@@ -450,9 +495,9 @@ def _estimate(kind: str, fit: dict, start_n: np.ndarray, scale: float, centre: n
             axis, angle = -axis, -angle
         transform_n = transform_from_revolute(axis, pivot, angle)
         slide_n = float(np.mean((fit["pair_end"] - apply_transform(transform_n, fit["pair_start"])) @ axis))
-        uncertainty = {"axis_deg": axis_sigma,
-                       "origin": float(np.sqrt(max(covariance[2, 2] + covariance[3, 3], 0.0))) * scale,
-                       "angle": float(np.sqrt(max(covariance[4, 4], 0.0)))}
+        uncertainty = _revolute_sigma(covariance, scale)
+        sigma_parts = {"uncertainty_jacobian": _revolute_sigma(jacobian_covariance, scale),
+                       "uncertainty_resample": _revolute_sigma(fit["resample_covariance"], scale)}
         if np.degrees(angle) < config.small_angle_deg:
             warnings.append(f"rotation of {np.degrees(angle):.3g} deg < {config.small_angle_deg} deg: axis poorly defined")
         pivot_distance = float(np.linalg.norm(pivot - reference))
@@ -468,10 +513,12 @@ def _estimate(kind: str, fit: dict, start_n: np.ndarray, scale: float, centre: n
         if distance < 0:
             axis, distance = -axis, -distance
         transform_n = transform_from_prismatic(axis, distance)
-        uncertainty = {"axis_deg": axis_sigma,
-                       "origin": residual / np.sqrt(max(fit["pairs"], 1)) * scale,
-                       "distance": float(np.sqrt(max(covariance[2, 2], 0.0))) * scale}
-        if distance < 3.0 * max(uncertainty["distance"] / scale, residual / np.sqrt(max(fit["pairs"], 1))):
+        origin_sigma = residual / np.sqrt(max(fit["pairs"], 1)) * scale
+        uncertainty = _prismatic_sigma(covariance, scale, origin_sigma)
+        sigma_parts = {"uncertainty_jacobian": _prismatic_sigma(jacobian_covariance, scale, origin_sigma),
+                       "uncertainty_resample": _prismatic_sigma(fit["resample_covariance"], scale, 0.0)}
+        jacobian_distance_sigma = sigma_parts["uncertainty_jacobian"]["distance"] / scale
+        if distance < 3.0 * max(jacobian_distance_sigma, residual / np.sqrt(max(fit["pairs"], 1))):
             warnings.append(f"slide of {distance * scale:.3g} is tiny compared with the noise: axis poorly defined")
         origin = reference * scale + centre
         estimate_angle, estimate_distance, slide = None, float(distance * scale), float(distance * scale)
@@ -482,7 +529,8 @@ def _estimate(kind: str, fit: dict, start_n: np.ndarray, scale: float, centre: n
     if any("poorly defined" in w or "ambiguous" in w or "ill-conditioned" in w for w in warnings):
         confidence *= 0.5
     diagnostics.update({"pairs": fit["pairs"], "match_fraction": fit["match_fraction"],
-                        "condition": fit["condition"], "part_radius": part_radius * scale})
+                        "condition": fit["condition"], "part_radius": part_radius * scale,
+                        "resample_blocks": fit["resample_blocks"], **sigma_parts})
     return JointEstimate(type=kind, axis=axis.copy(), origin=origin, angle=estimate_angle, distance=estimate_distance,
                          transform=transform, uncertainty=uncertainty, residual=residual * scale,
                          confidence=float(np.clip(confidence, 0.0, 1.0)), slide=slide, warnings=warnings,

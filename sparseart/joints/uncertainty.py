@@ -1,0 +1,73 @@
+"""Honest 1-sigma joint uncertainty: a spatial block jackknife on top of the Jacobian covariance.
+
+Why: the Jacobian covariance ``s^2 (J^T J)^+`` assumes independent residuals. Surface points of one
+pixel grid are not independent, and the errors that dominate on real scenes are *systematic* and
+spatially coherent (a region seen in one state only, a strip of static points labelled as moving,
+correspondences biased on one face). They leave residual patterns that pull the estimate, but a
+residual variance cannot see the pull. A *block* resampling can: split the part into ``K`` spatial
+blocks (farthest-point centres, every residual assigned to the block of its point), re-estimate
+without each block and take the spread of the ``K`` estimates (delete-a-group jackknife; Kunsch
+1989, Busing et al. 1999). A block that holds a systematic error moves the estimate when dropped,
+so its effect enters the variance; correlations shorter than a block are absorbed too.
+
+The re-estimates are one Gauss-Newton step from the converged solution on the robust
+(IRLS-weighted) Jacobian that the fitter already has (``_covariance``), i.e. the linearised
+refit without the block -- exact for the linearised problem, and the same as the
+cluster-robust "sandwich" covariance to first order. Chamfer neighbours stay frozen.
+
+Cost: O(R p^2 + K p^3) for R residual rows and p <= 5 parameters plus an O(R log K) block
+assignment -- no extra residual evaluations; measured ~1-3 % of a ``fit_joint`` call
+(``benchmarks/uncertainty_calibration.py --timing``).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+
+def spatial_blocks(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """Block index (n,) int of every point: nearest of ``count`` farthest-point-sampled centres.
+
+    points (n, 3) float64. O(n count). Fewer than ``count`` distinct points -> fewer blocks.
+    """
+    n = len(points)
+    if n == 0:
+        return np.zeros(0, dtype=int)
+    centres = [int(rng.integers(n))]
+    distance = np.linalg.norm(points - points[centres[0]], axis=1)
+    for _ in range(1, count):
+        index = int(np.argmax(distance))
+        if distance[index] <= 0:
+            break
+        centres.append(index)
+        distance = np.minimum(distance, np.linalg.norm(points - points[index], axis=1))
+    gaps = np.linalg.norm(points[:, None, :] - points[centres][None, :, :], axis=2)
+    return np.argmin(gaps, axis=1)
+
+
+def block_jackknife_covariance(jacobian: np.ndarray, residual: np.ndarray, blocks: np.ndarray,
+                               rcond: float = 1e-12) -> tuple[np.ndarray, int]:
+    """Delete-a-block jackknife covariance of one Gauss-Newton step, (p, p) float64, and the
+    number of blocks used.
+
+    jacobian (R, p), residual (R,): robust-weighted rows at the converged solution. blocks (R,)
+    int: the spatial block of every row. For each block b the linearised estimate without it is
+    ``d_b = -(H - H_b)^+ (g - g_b)`` with ``H = J^T J``, ``g = J^T r``; the covariance is
+    ``(K-1)/K sum_b (d_b - d)(d_b - d)^T`` with ``d = -H^+ g`` the full-data step (so a solution
+    that is not exactly converged adds nothing). Fewer than 2 blocks -> zeros.
+    """
+    p = jacobian.shape[1]
+    labels = np.unique(blocks)
+    if len(labels) < 2:
+        return np.zeros((p, p)), len(labels)
+    hessian = jacobian.T @ jacobian
+    gradient = jacobian.T @ residual
+    full = -np.linalg.pinv(hessian, rcond=rcond) @ gradient
+    steps = []
+    for label in labels:
+        rows = blocks == label
+        block_jacobian = jacobian[rows]
+        reduced = hessian - block_jacobian.T @ block_jacobian
+        steps.append(-np.linalg.pinv(reduced, rcond=rcond) @ (gradient - block_jacobian.T @ residual[rows]))
+    deviation = np.array(steps) - full
+    count = len(labels)
+    return (count - 1) / count * deviation.T @ deviation, count
