@@ -41,9 +41,12 @@ def rotation_error(estimate: np.ndarray, truth: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
 
 
-def short(error: Exception) -> str:
-    text = str(error).replace(str(Path(tempfile.gettempdir())), "")
-    return text if len(text) < 160 else text[:157] + "..."
+def short(error: Exception, scene_dir: Path | None = None) -> str:
+    """One line without the temporary scene folder (image names stay: start/rgb/000.png ...)."""
+    text = str(error)
+    if scene_dir is not None:
+        text = text.replace(f"{scene_dir}/", "")
+    return text if len(text) < 400 else text[:397] + "..."
 
 
 def evaluate_object(object_dir: Path, work: Path, views: int, seed: int, width: int) -> dict:
@@ -56,7 +59,7 @@ def evaluate_object(object_dir: Path, work: Path, views: int, seed: int, width: 
     size = float(gt["scale"])
     row: dict = {"object": object_dir.name, "scale": size}
     pointmaps: dict[str, list] = {}
-    view_rot, view_trans, geometry_edges, failures = [], [], 0, []
+    view_rot, view_trans, geometry_edges, loop_flags, failures = [], [], 0, 0, []
     began = time.perf_counter()
     for state in ("start", "end"):
         frames = scene.frames(state)
@@ -65,10 +68,11 @@ def evaluate_object(object_dir: Path, work: Path, views: int, seed: int, width: 
         try:
             transforms, warnings = register_views(frames, own, with_scale=False, seed=seed)
         except AlignmentError as error:
-            failures.append(short(error))
+            failures.append(short(error, scene_dir))
             pointmaps[state] = own[:1]
             continue
         geometry_edges += sum("geometry only" in w for w in warnings)
+        loop_flags += sum("disagrees with the chain" in w for w in warnings)
         for i in range(1, len(frames)):
             truth = np.linalg.inv(cameras[0]) @ cameras[i]
             view_rot.append(rotation_error(transforms[i], truth))
@@ -79,6 +83,7 @@ def evaluate_object(object_dir: Path, work: Path, views: int, seed: int, width: 
     row["views_registered"] = len(view_rot)
     row["views_total"] = 2 * (views - 1)
     row["geometry_edges"] = geometry_edges
+    row["loop_warnings"] = loop_flags
     row["view_rot_max"] = max(view_rot) if view_rot else None
     row["view_trans_max"] = max(view_trans) if view_trans else None
     began = time.perf_counter()
@@ -91,10 +96,10 @@ def evaluate_object(object_dir: Path, work: Path, views: int, seed: int, width: 
                    candidates=[c.support for c in result.candidates],
                    state_rot=rotation_error(estimate, truth),
                    state_trans=float(np.linalg.norm(estimate[:3, 3] - truth[:3, 3])) / size,
-                   state_warnings=result.warnings, state_error=None)
+                   state_warnings=[short(Exception(w), scene_dir) for w in result.warnings], state_error=None)
     except AlignmentError as error:
         row.update(matches=None, inlier_share=None, candidates=[], state_rot=None, state_trans=None,
-                   state_warnings=[], state_error=short(error))
+                   state_warnings=[], state_error=short(error, scene_dir))
     row["states_seconds"] = time.perf_counter() - began
     return row
 
@@ -107,14 +112,15 @@ def table(rows: list[dict], args) -> str:
     lines = [f"sparseart.align on unposed PartNet renders: {args.width}x{args.width * 3 // 4}, {args.views} views per "
              f"state, seed {args.seed}, fresh end cameras; clean depth",
              "views: worst registered view of both states vs gt cameras (rot deg, trans % of bbox diagonal), "
-             "ok = registered/total, geo = edges by the geometric fallback",
+             "ok = registered/total, geo = edges by the geometric fallback, loop = loop-closure warnings "
+             "(a registration that disagrees with the chain: flagged, not silent)",
              "states: pooled SIFT matches, static inlier share, motion candidates (support), error vs gt; "
              "s = wall seconds (2 shared cores)", "",
-             f"{'object':<24}{'views ok':>9}{'geo':>4}{'rot':>7}{'trans%':>8}{'s':>6}  |"
+             f"{'object':<24}{'views ok':>9}{'geo':>4}{'loop':>5}{'rot':>7}{'trans%':>8}{'s':>6}  |"
              f"{'match':>6}{'inl':>6}{'rot':>7}{'trans%':>8}{'s':>6}  candidates"]
     for r in rows:
         lines.append(
-            f"{r['object']:<24}{r['views_registered']:>5}/{r['views_total']:<3}{r['geometry_edges']:>4}"
+            f"{r['object']:<24}{r['views_registered']:>5}/{r['views_total']:<3}{r['geometry_edges']:>4}{r['loop_warnings']:>5}"
             f"{fmt(r['view_rot_max'], '7.2f', '      -')}{fmt(r['view_trans_max'] and 100 * r['view_trans_max'], '8.2f', '       -')}"
             f"{r['views_seconds']:>6.1f}  |{fmt(r['matches'], '6d', '     -')}{fmt(r['inlier_share'], '6.2f', '     -')}"
             f"{fmt(r['state_rot'], '7.2f', '      -')}{fmt(r['state_trans'] and 100 * r['state_trans'], '8.2f', '       -')}"
@@ -126,17 +132,20 @@ def table(rows: list[dict], args) -> str:
         if r["state_error"]:
             lines.append(f"{r['object']}: states: {r['state_error']}")
         for warning in r["state_warnings"]:
-            lines.append(f"{r['object']}: states warning: {short(Exception(warning))}")
+            lines.append(f"{r['object']}: states warning: {warning}")
     registered = sum(r["views_registered"] for r in rows)
     total = sum(r["views_total"] for r in rows)
     good = [r for r in rows if r["view_rot_max"] is not None]
     rot = [r["view_rot_max"] for r in good]
     trans = [100 * r["view_trans_max"] for r in good]
     within = sum(1 for r in good if r["view_rot_max"] < 1 and r["view_trans_max"] < 0.01)
+    flagged = [r["object"] for r in good if r["view_rot_max"] >= 1 or r["view_trans_max"] >= 0.01]
+    warned = [o for o in flagged if next(r for r in rows if r["object"] == o)["loop_warnings"]]
     aligned = [r for r in rows if r["state_rot"] is not None]
     lines += ["", f"views registered: {registered}/{total} ({sum(len(r['views_failed']) for r in rows)} states "
                   f"failed with an AlignmentError); objects with every registered view within 1 deg and 1 %: "
-                  f"{within}/{len(good)}; worst-view median {np.median(rot):.2f} deg / {np.median(trans):.2f} %"
+                  f"{within}/{len(good)}; worst-view median {np.median(rot):.2f} deg / {np.median(trans):.2f} %; "
+                  f"outside: {', '.join(flagged) or 'none'} (loop-closure warned: {', '.join(warned) or 'none'})"
               if good else "views registered: none",
               f"states aligned: {len(aligned)}/{len(rows)}"
               + (f"; median error {np.median([r['state_rot'] for r in aligned]):.2f} deg / "

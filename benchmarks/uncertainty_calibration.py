@@ -58,6 +58,7 @@ def joint_rows(object_dir: Path, scenes: Path, setting: BenchSetting) -> list[di
             jacobian = joint.diagnostics.get("uncertainty_jacobian", joint.uncertainty)
             out.update(sigma=float(joint.uncertainty["axis_deg"]), sigma_jacobian=float(jacobian["axis_deg"]),
                        sigma_resample=joint.diagnostics.get("uncertainty_resample", {}).get("axis_deg"),
+                       sigma_half=joint.diagnostics.get("uncertainty_half", {}).get("axis_deg"),
                        match_fraction=joint.diagnostics.get("match_fraction"), warnings=list(joint.warnings))
         rows.append(out)
     return rows
@@ -103,7 +104,7 @@ def report(rows: list[dict], before: list[dict] | None) -> str:
               f"masks, 320x240, seed 0); sigma = stated 1-sigma axis uncertainty (deg)")
     old = {(r["object"], r["joint"]): r for r in (before or [])}
     lines = [header, f"{'object':26s} {'joint':18s} {'type':9s} {'err°':>7s} {'σ_old°':>7s} {'σ_jac°':>7s} "
-                     f"{'σ_rs°':>7s} {'σ_new°':>7s} {'err/σo':>7s} {'err/σn':>7s} {'match':>6s}  warnings"]
+                     f"{'σ_jk°':>7s} {'σ_hs°':>7s} {'σ_new°':>7s} {'err/σo':>7s} {'err/σn':>7s} {'match':>6s}  warnings"]
     identical = True
     for r in rows:
         if "sigma" not in r:
@@ -111,12 +112,13 @@ def report(rows: list[dict], before: list[dict] | None) -> str:
             continue
         previous = old.get((r["object"], r["joint"]))
         sigma_old = previous["sigma"] if previous and "sigma" in previous else r["sigma_jacobian"]
-        if previous is not None and abs(previous["axis_deg"] - r["axis_deg"]) > 1e-9:
+        if previous is not None and abs(previous["axis_deg"] - r["axis_deg"]) > 1e-6:
             identical = False
-        rs = r.get("sigma_resample")
+        rs, hs = r.get("sigma_resample"), r.get("sigma_half")
         short = "; ".join(w.split(":")[0][:38] for w in r.get("warnings", []))
         lines.append(f"{r['object']:26s} {str(r['joint'])[:18]:18s} {str(r['pred_type'])[:9]:9s} {r['axis_deg']:7.3f} "
                      f"{sigma_old:7.3f} {r['sigma_jacobian']:7.3f} {'-' if rs is None else f'{rs:7.3f}':>7s} "
+                     f"{'-' if hs is None else f'{hs:7.3f}':>7s} "
                      f"{r['sigma']:7.3f} {r['axis_deg'] / sigma_old:7.2f} {r['axis_deg'] / r['sigma']:7.2f} "
                      f"{r.get('match_fraction') or 0:6.2f}  {short}")
     good = [r for r in rows if "sigma" in r and r["axis_deg"] < FAILED_AXIS_DEG]

@@ -12,8 +12,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .align_features import (AlignmentError, FeatureMatches, ViewFeatures, match_features,
-                             match_view_features, view_features)
+from .align_features import (PLANAR_FRACTION, THRESHOLD_FRACTION, AlignmentError, FeatureMatches,
+                             geometry_edge, icp_polish, match_features, match_view_features, scene_size,
+                             spread, valid_points, view_features)
 from .types import Frame, Pointmap
 
 __all__ = ["AlignmentError", "FeatureMatches", "MotionCandidate", "Similarity", "StateAlignment",
@@ -22,13 +23,9 @@ __all__ = ["AlignmentError", "FeatureMatches", "MotionCandidate", "Similarity", 
 
 MIN_MATCHES = 12                 # fewer matches after ratio test and lifting -> error
 MIN_CONSENSUS_FRACTION = 0.15    # RANSAC consensus below max(6, 15 % of matches) -> error
-THRESHOLD_FRACTION = 0.02        # RANSAC inlier threshold, fraction of the scene size
 DEGENERATE_FRACTION = 0.04       # inlier RMS spread along the 2nd principal axis / scene size
-PLANAR_FRACTION = 0.02           # ... along the 3rd axis: planar (warn before ICP)
 AMBIGUOUS_RATIO = 0.70           # 2nd motion support / static support above this -> warning
 SCALE_RANGE = (0.2, 5.0)         # with_scale=True: scale outside -> warning
-GEOMETRY_MIN_OVERLAP = 0.5       # geometric fallback: accepted overlap fraction
-MAX_FREE_SPACE_VIOLATION = 0.05 # geometric fallback: share of points in seen-through space
 LOOP_DEG, LOOP_FRACTION = 5.0, 0.05   # loop-closure disagreement that is warned
 
 
@@ -200,26 +197,6 @@ def ransac_similarity(source: np.ndarray, target: np.ndarray, *, with_scale: boo
     return model, inliers
 
 
-def scene_size(points: np.ndarray, max_points: int = 20000) -> float:
-    """Median distance of the finite points to their centroid (the scale of RANSAC thresholds)."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    points = points[np.isfinite(points).all(axis=1)]
-    if points.shape[0] == 0:
-        return 0.0
-    if points.shape[0] > max_points:
-        points = points[np.linspace(0, points.shape[0] - 1, max_points).astype(int)]
-    return float(np.median(np.linalg.norm(points - points.mean(axis=0), axis=1)))
-
-
-def spread(points: np.ndarray) -> np.ndarray:
-    """(3,) RMS extent of the points along their principal axes, largest first. O(N)."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if points.shape[0] < 2:
-        return np.zeros(3)
-    singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
-    return np.pad(singular, (0, 3 - singular.size)) / np.sqrt(points.shape[0])
-
-
 def _describe(names_a: list[str], names_b: list[str]) -> str:
     return f"{', '.join(names_a)} vs {', '.join(names_b)}"
 
@@ -260,10 +237,6 @@ def transform_pointmap(pointmap: Pointmap, transform: np.ndarray) -> Pointmap:
     return replace(pointmap, points=points)
 
 
-def _valid_points(pointmap: Pointmap) -> np.ndarray:
-    return pointmap.points[pointmap.valid & np.isfinite(pointmap.points).all(axis=1)]
-
-
 def _widest_tree(n: int, weight: np.ndarray) -> np.ndarray:
     """Parent of every node in a maximum spanning tree grown from node 0 (Prim); -1 = unreached.
 
@@ -284,84 +257,6 @@ def _widest_tree(n: int, weight: np.ndarray) -> np.ndarray:
         best[better], origin[better] = weight[j][better], j
 
 
-def _icp_polish(source: np.ndarray, target: np.ndarray, init: np.ndarray, size: float) -> np.ndarray | None:
-    """Point-to-plane ICP (Tukey kernel, coarse to fine) of camera-frame ``source`` onto ``target``.
-
-    Returns the polished (4, 4) or None when it does not improve the overlap. O(N log N)."""
-    from ._open3d import open3d
-    o3d = open3d()
-    reg = o3d.pipelines.registration
-    voxel = size / 60.0
-    src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source)).voxel_down_sample(voxel)
-    tgt = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(target)).voxel_down_sample(voxel)
-    if len(src.points) < 30 or len(tgt.points) < 30:
-        return None
-    tgt.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel, max_nn=30))
-    transform = init
-    for distance in (4 * THRESHOLD_FRACTION * size, 2 * THRESHOLD_FRACTION * size,
-                     THRESHOLD_FRACTION * size):
-        estimation = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=distance))
-        result = reg.registration_icp(src, tgt, distance, transform, estimation,
-                                      reg.ICPConvergenceCriteria(1e-8, 1e-8, 50))
-        candidate = np.asarray(result.transformation, dtype=np.float64)
-        if not np.all(np.isfinite(candidate)):
-            return None
-        transform = candidate
-    check = THRESHOLD_FRACTION * size / 2
-    before = reg.evaluate_registration(src, tgt, check, init)
-    after = reg.evaluate_registration(src, tgt, check, transform)
-    return transform if after.fitness >= before.fitness else None
-
-
-def _free_space_violation(points: np.ndarray, frame: Frame, pointmap: Pointmap, size: float) -> float:
-    """Fraction of ``points`` (in ``frame``'s camera frame) that land in front of the surface the
-    camera saw (or on certain background): a wrong registration puts surfaces where this view saw
-    through. O(N + H W)."""
-    import cv2
-
-    h, w = pointmap.height, pointmap.width
-    valid = pointmap.valid.reshape(h, w)
-    # Nearest seen surface over a 5x5 window: grazing surfaces change depth quickly per pixel.
-    depth = np.where(valid, np.nan_to_num(pointmap.points[:, 2].reshape(h, w)), np.inf)
-    depth = cv2.erode(depth.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.float64)
-    background = cv2.dilate(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0
-    points = points[points[:, 2] > 1e-9]
-    uv = points @ frame.camera.K.T
-    col, row = np.rint(uv[:, 0] / uv[:, 2]).astype(int), np.rint(uv[:, 1] / uv[:, 2]).astype(int)
-    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-    if inside.sum() < 30:
-        return 0.0
-    row, col, z = row[inside], col[inside], points[inside, 2]
-    seen = depth[row, col]
-    bad = background[row, col] | (np.isfinite(seen) & (z < seen - 2 * THRESHOLD_FRACTION * size))
-    return float(bad.mean())
-
-
-def _geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray],
-                   size: float, seed: int) -> tuple[Similarity, float, float] | None:
-    """Geometric fallback view j -> view i for metric clouds in their camera frames
-    (:func:`sparseart.joints.register.register_rigid`: PCA/FPFH hypotheses + coloured ICP).
-
-    None for planar clouds (they slide), small overlap, or when either view sees through the other
-    one's surfaces (free-space check, which rejects the turned-around fits of symmetric objects).
-    Returns (model, overlap fraction, edge weight in [0, 1)). O(N log N + H W)."""
-    from .joints.register import register_rigid
-
-    if min(spread(clouds[i])[2], spread(clouds[j])[2]) < PLANAR_FRACTION * size:
-        return None
-    colors = [frames[k].rgb.reshape(-1, 3)[pointmaps[k].valid & np.isfinite(pointmaps[k].points).all(axis=1)]
-              / 255.0 for k in (j, i)]
-    result = register_rigid(clouds[j], clouds[i], colors[0], colors[1], seed=seed)
-    if result.inlier_fraction < GEOMETRY_MIN_OVERLAP:
-        return None
-    model = Similarity.from_matrix(result.transform)
-    violation = max(_free_space_violation(model.apply(clouds[j]), frames[i], pointmaps[i], size),
-                    _free_space_violation(model.inverse().apply(clouds[i]), frames[j], pointmaps[j], size))
-    if violation > MAX_FREE_SPACE_VIOLATION:
-        return None
-    return model, result.inlier_fraction, 0.999 * result.inlier_fraction * (1.0 - violation)
-
-
 def _angle_deg(rotation: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
 
@@ -373,9 +268,9 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
     Every pair of views is matched and fitted (:func:`fit_matches`); each view is reached from
     view 0 through the maximum spanning tree of the inlier counts (so a view that only overlaps
     view 1 is chained through it). When features leave a view unreached and the clouds are metric
-    (``with_scale=False``), pairs without a feature fit get a geometric registration
-    (:func:`_geometry_edge`, with a warning naming the view; never for planar clouds); feature
-    edges always rank above geometric ones. Edges off the tree are checked against it (loop
+    (``with_scale=False``) with K, pairs without a feature fit get a geometric registration
+    (:func:`~sparseart.align_features.geometry_edge`, with a warning naming the view; never for
+    planar clouds); feature edges always rank above geometric ones. Edges off the tree are checked against it (loop
     closure) and disagreements warned. With ``with_scale=False`` each view is then polished by
     point-to-plane ICP against the views already placed. O(V^2 (M^2 + 2000 K + N log N)).
 
@@ -395,7 +290,7 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
     n = len(frames)
     if n == 1:
         return [np.eye(4)], []
-    clouds = [_valid_points(p) for p in pointmaps]
+    clouds = [valid_points(p) for p in pointmaps]
     size = scene_size(np.concatenate(clouds))
     features = [view_features(f, p) for f, p in zip(frames, pointmaps)]
     weight = np.zeros((n, n))
@@ -420,16 +315,17 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
             continue
         add(i, j, model, 1.0 + float(inliers.sum()), f"{int(inliers.sum())} feature inliers")
     parent = _widest_tree(n, weight)
-    if geometry_fallback and not with_scale and np.any(parent[1:] < 0):
+    if (geometry_fallback and not with_scale and np.any(parent[1:] < 0)
+            and all(f.camera is not None for f in frames)):
         for i, j in pairs:
             if weight[i, j] == 0:
-                edge = _geometry_edge(j, i, frames, pointmaps, clouds, size, seed)
+                edge = geometry_edge(j, i, frames, pointmaps, clouds, size, seed)
                 if edge is None:
                     why = "geometric registration rejected (planar, little overlap or sees through)"
                     reasons[i].append(why)
                     reasons[j].append(why)
                 else:
-                    add(i, j, edge[0], edge[2], f"geometry only, {edge[1]:.0%} overlap")
+                    add(i, j, Similarity.from_matrix(edge[0]), edge[2], f"geometry only, {edge[1]:.0%} overlap")
         parent = _widest_tree(n, weight)
     warnings: list[str] = []
     transforms: list[np.ndarray | None] = [np.eye(4)] + [None] * (n - 1)
@@ -463,7 +359,7 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
             if spread(target)[2] < PLANAR_FRACTION * size or spread(clouds[j])[2] < PLANAR_FRACTION * size:
                 warnings.append(f"{frames[j].rgb_path}: ICP polish on a planar cloud may slide "
                                 f"along the plane")
-            polished = _icp_polish(clouds[j], target, transforms[j], size)
+            polished = icp_polish(clouds[j], target, transforms[j], size)
             if polished is None:
                 warnings.append(f"{frames[j].rgb_path}: ICP polish did not improve the overlap; "
                                 f"kept the registration as it was")
@@ -522,7 +418,7 @@ def align_states(start_frames: list[Frame], start_pointmaps: list[Pointmap], end
             views_b.append(j)
     n_keypoints = (sum(f.pixels.shape[0] for f in fa), sum(f.pixels.shape[0] for f in fb))
     matches = FeatureMatches.concatenate(parts, views_a, views_b, n_keypoints)
-    size = scene_size(np.concatenate([_valid_points(p) for p in start_pointmaps]))
+    size = scene_size(np.concatenate([valid_points(p) for p in start_pointmaps]))
     model, inliers, rmse = fit_matches(matches, with_scale=with_scale, size=size, seed=seed,
                                        names_a=[f.name for f in fa], names_b=[f.name for f in fb])
     warnings: list[str] = []

@@ -1,9 +1,12 @@
-"""SIFT features lifted to 3D through pointmaps: the matching half of :mod:`sparseart.align`.
+"""SIFT features lifted to 3D through pointmaps, and the point-cloud checks of :mod:`sparseart.align`.
 
 Keypoints come from OpenCV SIFT (RootSIFT descriptors), restricted to pixels with a valid 3D point
 (within ``LIFT_RADIUS_PX``: silhouette corners sit on the background side of the edge) and to the
 caller's masks. Matches pass Lowe's ratio test and a mutual (cross) check; each match is lifted to
 3D through the pointmaps of both images (nearest valid pixel within ``LIFT_RADIUS_PX``).
+
+Cloud helpers used by the view registration: scene size and spread, the ICP polish, and the
+geometric fallback for views without feature matches, verified by a free-space check.
 """
 from __future__ import annotations
 
@@ -18,6 +21,10 @@ from .types import Frame, Pointmap, SceneError
 SIFT_CONTRAST_THRESHOLD = 0.01
 # A keypoint may sit up to this many pixels from the nearest valid pointmap pixel.
 LIFT_RADIUS_PX = 2.0
+THRESHOLD_FRACTION = 0.02        # RANSAC inlier threshold / ICP distance, fraction of the scene size
+PLANAR_FRACTION = 0.02           # RMS spread along the 3rd principal axis / scene size: planar
+GEOMETRY_MIN_OVERLAP = 0.5       # geometric fallback: accepted overlap fraction
+MAX_FREE_SPACE_VIOLATION = 0.05  # geometric fallback: accepted share of points in seen-through space
 
 
 class AlignmentError(SceneError):
@@ -180,3 +187,108 @@ def match_features(frame_a: Frame, pointmap_a: Pointmap, frame_b: Frame, pointma
     fa = view_features(frame_a, pointmap_a, mask_a, max_features)
     fb = view_features(frame_b, pointmap_b, mask_b, max_features)
     return match_view_features(fa, fb, ratio)
+
+
+# ----------------------------------------------------------------------------- cloud helpers
+def scene_size(points: np.ndarray, max_points: int = 20000) -> float:
+    """Median distance of the finite points to their centroid (the scale of RANSAC thresholds)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    points = points[np.isfinite(points).all(axis=1)]
+    if points.shape[0] == 0:
+        return 0.0
+    if points.shape[0] > max_points:
+        points = points[np.linspace(0, points.shape[0] - 1, max_points).astype(int)]
+    return float(np.median(np.linalg.norm(points - points.mean(axis=0), axis=1)))
+
+
+def spread(points: np.ndarray) -> np.ndarray:
+    """(3,) RMS extent of the points along their principal axes, largest first. O(N)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if points.shape[0] < 2:
+        return np.zeros(3)
+    singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return np.pad(singular, (0, 3 - singular.size)) / np.sqrt(points.shape[0])
+
+
+def valid_points(pointmap: Pointmap) -> np.ndarray:
+    return pointmap.points[pointmap.valid & np.isfinite(pointmap.points).all(axis=1)]
+
+
+def icp_polish(source: np.ndarray, target: np.ndarray, init: np.ndarray, size: float) -> np.ndarray | None:
+    """Point-to-plane ICP (Tukey kernel, coarse to fine) of camera-frame ``source`` onto ``target``.
+
+    Returns the polished (4, 4) or None when it does not improve the overlap. O(N log N)."""
+    from ._open3d import open3d
+    o3d = open3d()
+    reg = o3d.pipelines.registration
+    voxel = size / 60.0
+    src = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source)).voxel_down_sample(voxel)
+    tgt = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(target)).voxel_down_sample(voxel)
+    if len(src.points) < 30 or len(tgt.points) < 30:
+        return None
+    tgt.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel, max_nn=30))
+    transform = init
+    for distance in (4 * THRESHOLD_FRACTION * size, 2 * THRESHOLD_FRACTION * size,
+                     THRESHOLD_FRACTION * size):
+        estimation = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=distance))
+        result = reg.registration_icp(src, tgt, distance, transform, estimation,
+                                      reg.ICPConvergenceCriteria(1e-8, 1e-8, 50))
+        candidate = np.asarray(result.transformation, dtype=np.float64)
+        if not np.all(np.isfinite(candidate)):
+            return None
+        transform = candidate
+    check = THRESHOLD_FRACTION * size / 2
+    before = reg.evaluate_registration(src, tgt, check, init)
+    after = reg.evaluate_registration(src, tgt, check, transform)
+    return transform if after.fitness >= before.fitness else None
+
+
+def _free_space_violation(points: np.ndarray, frame: Frame, pointmap: Pointmap, size: float) -> float:
+    """Fraction of ``points`` (in ``frame``'s camera frame) that land in front of the surface the
+    camera saw (or on certain background): a wrong registration puts surfaces where this view saw
+    through. O(N + H W)."""
+    import cv2
+
+    h, w = pointmap.height, pointmap.width
+    valid = pointmap.valid.reshape(h, w)
+    # Nearest seen surface over a 5x5 window: grazing surfaces change depth quickly per pixel.
+    depth = np.where(valid, np.nan_to_num(pointmap.points[:, 2].reshape(h, w)), np.inf)
+    depth = cv2.erode(depth.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.float64)
+    background = cv2.dilate(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0
+    points = points[points[:, 2] > 1e-9]
+    uv = points @ frame.camera.K.T
+    col, row = np.rint(uv[:, 0] / uv[:, 2]).astype(int), np.rint(uv[:, 1] / uv[:, 2]).astype(int)
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    if inside.sum() < 30:
+        return 0.0
+    row, col, z = row[inside], col[inside], points[inside, 2]
+    seen = depth[row, col]
+    bad = background[row, col] | (np.isfinite(seen) & (z < seen - 2 * THRESHOLD_FRACTION * size))
+    return float(bad.mean())
+
+
+def geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray],
+                   size: float, seed: int) -> tuple[np.ndarray, float, float] | None:
+    """Geometric fallback view j -> view i for metric clouds in their camera frames
+    (:func:`sparseart.joints.register.register_rigid`: PCA/FPFH hypotheses + coloured ICP).
+
+    None for planar clouds (they slide), small overlap, or when either view sees through the other
+    one's surfaces (free-space check, which rejects the turned-around fits of symmetric objects).
+    Returns ((4, 4) j -> i, overlap fraction, edge weight in [0, 1)). O(N log N + H W)."""
+    from .joints.register import register_rigid
+
+    if min(spread(clouds[i])[2], spread(clouds[j])[2]) < PLANAR_FRACTION * size:
+        return None
+    colors = [frames[k].rgb.reshape(-1, 3)[pointmaps[k].valid & np.isfinite(pointmaps[k].points).all(axis=1)]
+              / 255.0 for k in (j, i)]
+    result = register_rigid(clouds[j], clouds[i], colors[0], colors[1], seed=seed)
+    if result.inlier_fraction < GEOMETRY_MIN_OVERLAP:
+        return None
+    forward = np.asarray(result.transform, dtype=np.float64)
+    backward = np.linalg.inv(forward)
+    violation = max(
+        _free_space_violation(clouds[j] @ forward[:3, :3].T + forward[:3, 3], frames[i], pointmaps[i], size),
+        _free_space_violation(clouds[i] @ backward[:3, :3].T + backward[:3, 3], frames[j], pointmaps[j], size))
+    if violation > MAX_FREE_SPACE_VIOLATION:
+        return None
+    return forward, result.inlier_fraction, 0.999 * result.inlier_fraction * (1.0 - violation)

@@ -69,6 +69,7 @@ class FitConfig:
     small_angle_deg: float = 1.0
     few_points: int = 50
     uncertainty_resamples: int = 6
+    half_samples: int = 5
     robust_loss: str = "soft_l1"
     pair_tau_factor: float = 3.0
     normal_gate_deg: float = 45.0
@@ -302,8 +303,45 @@ def _fit_model(model, start, end, start_normals, end_normals, config: FitConfig,
     forward = np.abs(np.einsum("ij,ij->i", moved_chamfer - chamfer_end[forward_index], chamfer_normals[1][forward_index]))
     backward = np.abs(np.einsum("ij,ij->i", chamfer_end - moved_chamfer[backward_index],
                                 chamfer_normals[0][backward_index] @ rotation.T))
+
+    def half_sample_covariance(count: int, max_nfev: int = 8) -> np.ndarray:
+        """Spread of ``count`` refits on random halves of both states' matching and Chamfer
+        points, each re-matched (Hungarian) at the converged motion and solved warm-started from
+        it with at most ``max_nfev`` evaluations. Half-sample refits deviate from the full-data
+        solution with (about) the variance of the full-data estimate, so the covariance is the
+        mean outer product of the deviations. Own random generator: the fit is unchanged."""
+        centred = model.recentred(x)
+        half_rng = np.random.default_rng(config.seed + 7919)
+        deviations = []
+        for _ in range(count):
+            half_start = half_rng.permutation(len(match_start))[: max(len(match_start) // 2, MIN_POINTS)]
+            half_end = half_rng.permutation(len(match_end))[: max(len(match_end) // 2, MIN_POINTS)]
+            start_h, end_h = match_start[half_start], match_end[half_end]
+            moved_h = start_h @ rotation.T + translation
+            rows_h, cols_h, tau_h = _hungarian_pairs(moved_h, end_h, cKDTree(end_h), floor, ceiling,
+                                                     config.pair_tau_factor,
+                                                     match_start_normals[half_start] @ rotation.T,
+                                                     match_end_normals[half_end], normal_cos)
+            if len(rows_h) < MIN_POINTS:
+                continue
+            chamfer_s = half_rng.permutation(len(chamfer_start))[: max(len(chamfer_start) // 2, MIN_POINTS)]
+            chamfer_e = half_rng.permutation(len(chamfer_end))[: max(len(chamfer_end) // 2, MIN_POINTS)]
+            half_problem = _Problem(centred, start_h[rows_h], end_h[cols_h],
+                                    _pair_weights(model.kind, start_h[rows_h], end_h[cols_h], config.beta),
+                                    chamfer_start[chamfer_s], chamfer_end[chamfer_e], config.chamfer_weight,
+                                    config.robust_loss,
+                                    (chamfer_normals[0][chamfer_s], chamfer_normals[1][chamfer_e])
+                                    if config.normal_gate_deg < 90 else None, normal_cos)
+            refit = half_problem.solve(centred.x0, f_scale=f_scale, max_nfev=max_nfev)
+            deviations.append(refit.x - centred.x0)
+        if len(deviations) < 2:
+            return np.zeros((x.size, x.size))
+        deviations = np.array(deviations)
+        return deviations.T @ deviations / len(deviations)
+
     return {"model": model, "x": x, "covariance": covariance, "condition": condition,
             "resample_covariance": resample_covariance, "resample_blocks": blocks_used,
+            "half_sample_covariance": half_sample_covariance,
             "rotation": rotation, "translation": translation, "pair_residual": pair_residual,
             "tau": tau, "chamfer": np.concatenate([forward, backward]),
             "match_fraction": len(rows) / max(min(len(match_start), len(match_end)), 1),
@@ -438,7 +476,20 @@ def fit_joint(
         chosen = joint_type
     for kind, fit in fits.items():
         diagnostics[f"{kind}_condition"] = fit["condition"]
+    if "revolute" in fits:
+        diagnostics["revolute_pivot_factor"] = _pivot_factor(fits["revolute"], start_n)
+    if config.half_samples >= 2:
+        fits[chosen]["half_covariance"] = fits[chosen]["half_sample_covariance"](config.half_samples)
     return _estimate(chosen, fits[chosen], start_n, scale, centre, config, warnings, diagnostics)
+
+
+def _pivot_factor(fit: dict, start_n: np.ndarray) -> float:
+    """Distance of a revolute fit's axis line from the part centre, in part radii (RMS)."""
+    axis, pivot, _ = fit["model"].unpack(fit["x"])
+    reference = start_n.mean(axis=0)
+    offset = pivot - reference
+    radius = float(np.sqrt(np.mean(np.sum((start_n - reference) ** 2, axis=1))))
+    return float(np.linalg.norm(offset - (offset @ axis) * axis)) / max(radius, 1e-12)
 
 
 def _choose(fits: dict, config: FitConfig, diagnostics: dict) -> str:
@@ -451,7 +502,8 @@ def _choose(fits: dict, config: FitConfig, diagnostics: dict) -> str:
     decision = select_joint_type(rss["revolute"], rss["prismatic"], count, angle, angle_sigma,
                                  z=config.angle_z, min_angle=np.radians(config.min_angle_deg))
     diagnostics.update({"bic_revolute": decision.bic_revolute, "bic_prismatic": decision.bic_prismatic,
-                        "type_reason": decision.reason, "angle_significant": decision.angle_significant})
+                        "type_reason": decision.reason, "angle_significant": decision.angle_significant,
+                        "revolute_angle_z": abs(angle) / angle_sigma if angle_sigma > 0 else float("inf")})
     return decision.joint_type
 
 
@@ -476,7 +528,8 @@ def _estimate(kind: str, fit: dict, start_n: np.ndarray, scale: float, centre: n
     """Convert a normalised fit into a JointEstimate in input units, with warnings."""
     model, x = fit["model"], fit["x"]
     jacobian_covariance = fit["covariance"]
-    covariance = jacobian_covariance + fit["resample_covariance"]
+    half_covariance = fit.get("half_covariance", np.zeros_like(jacobian_covariance))
+    covariance = jacobian_covariance + fit["resample_covariance"] + half_covariance
     reference = start_n.mean(axis=0)
     part_radius = float(np.sqrt(np.mean(np.sum((start_n - reference) ** 2, axis=1))))
     axis_sigma = _axis_sigma_deg(covariance)
@@ -497,7 +550,8 @@ def _estimate(kind: str, fit: dict, start_n: np.ndarray, scale: float, centre: n
         slide_n = float(np.mean((fit["pair_end"] - apply_transform(transform_n, fit["pair_start"])) @ axis))
         uncertainty = _revolute_sigma(covariance, scale)
         sigma_parts = {"uncertainty_jacobian": _revolute_sigma(jacobian_covariance, scale),
-                       "uncertainty_resample": _revolute_sigma(fit["resample_covariance"], scale)}
+                       "uncertainty_resample": _revolute_sigma(fit["resample_covariance"], scale),
+                       "uncertainty_half": _revolute_sigma(half_covariance, scale)}
         if np.degrees(angle) < config.small_angle_deg:
             warnings.append(f"rotation of {np.degrees(angle):.3g} deg < {config.small_angle_deg} deg: axis poorly defined")
         pivot_distance = float(np.linalg.norm(pivot - reference))
@@ -516,7 +570,8 @@ def _estimate(kind: str, fit: dict, start_n: np.ndarray, scale: float, centre: n
         origin_sigma = residual / np.sqrt(max(fit["pairs"], 1)) * scale
         uncertainty = _prismatic_sigma(covariance, scale, origin_sigma)
         sigma_parts = {"uncertainty_jacobian": _prismatic_sigma(jacobian_covariance, scale, origin_sigma),
-                       "uncertainty_resample": _prismatic_sigma(fit["resample_covariance"], scale, 0.0)}
+                       "uncertainty_resample": _prismatic_sigma(fit["resample_covariance"], scale, 0.0),
+                       "uncertainty_half": _prismatic_sigma(half_covariance, scale, 0.0)}
         jacobian_distance_sigma = sigma_parts["uncertainty_jacobian"]["distance"] / scale
         if distance < 3.0 * max(jacobian_distance_sigma, residual / np.sqrt(max(fit["pairs"], 1))):
             warnings.append(f"slide of {distance * scale:.3g} is tiny compared with the noise: axis poorly defined")

@@ -55,12 +55,6 @@ class LiftedScene:
     diagnostics: dict = field(default_factory=dict)
 
 
-def transform_pointmap(pointmap: Pointmap, transform: np.ndarray) -> Pointmap:
-    """The pointmap with its points moved by a (4, 4) transform (a similarity is allowed); NaN stays NaN."""
-    points = pointmap.points @ transform[:3, :3].T + transform[:3, 3]
-    return replace(pointmap, points=points)
-
-
 def lift_scene(scene: Scene, *, reject_flying_pixels: bool = True, model: str | Path | None = None,
                onnx_options=None, seed: int = 0) -> LiftedScene:
     """Lift a loaded scene into two labelled clouds (masks already set on the frames).
@@ -94,8 +88,9 @@ def lift_scene(scene: Scene, *, reject_flying_pixels: bool = True, model: str | 
 
 
 def _clouds(scene: Scene, pointmaps: dict[str, list[Pointmap]]) -> tuple[LabelledCloud, LabelledCloud]:
-    return (build_labelled_cloud("start", scene.start, pointmaps["start"]),
-            build_labelled_cloud("end", scene.end, pointmaps["end"]))
+    """Labelled clouds of the frames that have a pointmap (the first len(pointmaps) of each state)."""
+    return tuple(build_labelled_cloud(state, scene.frames(state)[:len(pointmaps[state])], pointmaps[state])
+                 for state in ("start", "end"))
 
 
 def _lift_posed_rgbd(scene: Scene, reject_flying_pixels: bool) -> LiftedScene:
@@ -111,7 +106,7 @@ def _camera_reference(scene: Scene) -> str:
 
 def _lift_unposed_rgbd(scene: Scene, reject_flying_pixels: bool, seed: int) -> LiftedScene:
     """Camera-frame unprojection, views registered within each state, then the states aligned."""
-    from ..align import register_views
+    from ..align import AlignmentError, register_views, transform_pointmap
 
     seconds: dict[str, float] = {}
     warnings: list[str] = []
@@ -121,9 +116,15 @@ def _lift_unposed_rgbd(scene: Scene, reject_flying_pixels: bool, seed: int) -> L
         frames = scene.frames(state)
         own = [pointmap_from_depth(f, np.eye(4), reject_flying_pixels) for f in frames]
         if len(frames) > 1:
-            transforms, view_warnings = register_views(frames, own, with_scale=False, seed=seed)
-            warnings.extend(view_warnings)
-            own = [transform_pointmap(p, t) for p, t in zip(own, transforms)]
+            try:
+                transforms, view_warnings = register_views(frames, own, with_scale=False, seed=seed)
+            except AlignmentError as error:
+                warnings.append(f"{state}: views could not be registered ({error}); only "
+                                f"{state}/rgb/{frames[0].rgb_path.name} is used")
+                own = own[:1]
+            else:
+                warnings.extend(view_warnings)
+                own = [transform_pointmap(p, t) for p, t in zip(own, transforms)]
         pointmaps[state] = own
     seconds["register_views"] = time.perf_counter() - began
     return _align_states(scene, pointmaps, with_scale=False, units="metres", seed=seed,
@@ -134,12 +135,13 @@ def _align_states(scene: Scene, pointmaps: dict[str, list[Pointmap]], *, with_sc
                   seed: int, seconds: dict[str, float], warnings: list[str]) -> LiftedScene:
     """End pointmaps (end view-0 frame) -> start view-0 frame by feature alignment; on failure
     (too few matches, degenerate) keep them as they are and say so (alignment "none")."""
-    from ..align import AlignmentError, align_states
+    from ..align import AlignmentError, align_states, transform_pointmap
 
     frame = ("camera", _camera_reference(scene), units)
     began = time.perf_counter()
     try:
-        alignment = align_states(scene.start, pointmaps["start"], scene.end, pointmaps["end"],
+        alignment = align_states(scene.start[:len(pointmaps["start"])], pointmaps["start"],
+                                 scene.end[:len(pointmaps["end"])], pointmaps["end"],
                                  with_scale=with_scale, seed=seed)
     except AlignmentError as error:
         seconds["align_states"] = time.perf_counter() - began
