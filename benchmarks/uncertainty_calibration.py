@@ -59,7 +59,12 @@ def joint_rows(object_dir: Path, scenes: Path, setting: BenchSetting) -> list[di
             out.update(sigma=float(joint.uncertainty["axis_deg"]), sigma_jacobian=float(jacobian["axis_deg"]),
                        sigma_resample=joint.diagnostics.get("uncertainty_resample", {}).get("axis_deg"),
                        sigma_half=joint.diagnostics.get("uncertainty_half", {}).get("axis_deg"),
-                       match_fraction=joint.diagnostics.get("match_fraction"), warnings=list(joint.warnings))
+                       match_fraction=joint.diagnostics.get("match_fraction"), warnings=list(joint.warnings),
+                       residual=float(joint.residual), part_radius=joint.diagnostics.get("part_radius"),
+                       pairs=joint.diagnostics.get("pairs"), n_start=joint.diagnostics.get("n_start"),
+                       n_end=joint.diagnostics.get("n_end"), condition=joint.diagnostics.get("condition"),
+                       sigma_floor=joint.diagnostics.get("uncertainty_floor", {}).get("axis_deg"),
+                       half_sample_seconds=joint.diagnostics.get("half_sample_seconds"))
         rows.append(out)
     return rows
 
@@ -85,7 +90,7 @@ def timing(repeats: int = 2) -> str:
     total = {0: 0.0, 1: 0.0}
     for name, (start, end) in cases:
         best = {}
-        for flag, config in ((0, FitConfig(uncertainty_resamples=0)), (1, FitConfig())):
+        for flag, config in ((0, FitConfig(uncertainty_resamples=0, half_samples=0)), (1, FitConfig())):
             times = []
             for _ in range(repeats):
                 began = time.perf_counter()

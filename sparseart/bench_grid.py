@@ -29,8 +29,10 @@ from .scene import write_bytes_atomic, write_json_atomic
 
 QUICK_OBJECTS = ("toaster_press_103486", "stapler_press_102990", "door_9168")
 FLYING_FRACTION = 0.5  # fraction of depth-edge pixels made flying in the noisy-depth settings
-CONFIG_FIELDS = ("views", "posed", "depth_noise", "flying_pixels", "pose_noise_deg", "pose_noise_m", "refine")
-STAGES = ("read", "lift", "align", "label", "fit", "refine", "peer_segment", "peer_register")
+CONFIG_FIELDS = ("views", "posed", "depth_noise", "flying_pixels", "pose_noise_deg", "pose_noise_m", "refine",
+                 "scramble_masks", "use_masks", "segmenter")
+STAGES = ("read", "segment", "lift", "lift.register_views", "lift.align_states", "align", "label", "fit", "refine",
+          "peer_segment", "peer_register")
 
 
 def default_partnet_dir() -> Path:
@@ -44,7 +46,7 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
     default: 3 views, posed, no depth noise, no pose noise, no refinement; then views 1 / 2 / 4,
     unposed, depth noise 1 % and 3 % (each with flying pixels on half the depth-edge pixels),
     pose noise 0.5 deg + 0.5 cm (object units), mask ids scrambled per image, no masks (motion
-    split), refinement (only when ``RunOptions.refine`` exists).
+    split), the built-in image segmenter instead of the masks, refinement (only when ``RunOptions.refine`` exists).
     ``quick``: the default setting only.
     """
     base = BenchSetting(seed=seed, name="default")
@@ -56,7 +58,8 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
                 replace(base, depth_noise=0.03, flying_pixels=FLYING_FRACTION, name="depth3%+fly"),
                 replace(base, pose_noise_deg=0.5, pose_noise_m=0.005, name="pose0.5deg0.5cm"),
                 replace(base, scramble_masks=True, name="masks-scrambled"),
-                replace(base, use_masks=False, name="no-masks")]
+                replace(base, use_masks=False, name="no-masks"),
+                replace(base, segmenter="builtin", name="builtin-segmenter")]
     skipped = []
     if refine_available():
         settings.append(replace(base, refine=True, name="refine"))

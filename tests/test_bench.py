@@ -30,14 +30,14 @@ def test_grid_is_one_factor_at_a_time():
     assert default.name == "default" and default.views == 3 and default.posed and default.depth_noise == 0
     groups = {"views": {"views"}, "posed": {"posed"}, "depth": {"depth_noise", "flying_pixels"},
               "pose": {"pose_noise_deg", "pose_noise_m"}, "refine": {"refine"},
-              "masks": {"scramble_masks"}, "no_masks": {"use_masks"}}
+              "masks": {"scramble_masks"}, "no_masks": {"use_masks"}, "segmenter": {"segmenter"}}
     for setting in settings[1:]:
         changed = {k for k, v in vars(setting).items() if k != "name" and v != getattr(default, k)}
         assert any(changed and changed <= group for group in groups.values()), (setting.name, changed)
         assert setting.seed == 3
     names = [s.name for s in settings]
     assert {"views1", "views2", "views4", "unposed", "depth1%+fly", "depth3%+fly", "pose0.5deg0.5cm",
-            "masks-scrambled", "no-masks"} <= set(names)
+            "masks-scrambled", "no-masks", "builtin-segmenter"} <= set(names)
     assert ("refine" in names) != bool(skipped)  # either run or skipped with a reason
     assert grid_settings(quick=True)[0] == [BenchSetting(name="default")]
 

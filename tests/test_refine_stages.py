@@ -105,3 +105,20 @@ def _tiny_init(original):
     def init(self, **kwargs):
         original(self, **{**TINY, **kwargs})
     return init
+
+
+def test_object_budget_shares_iterations_between_parts():
+    from sparseart.refine.api import RefineOptions, budget_ratio, scaled_iterations
+
+    assert budget_ratio(None, 0.0, 5, 70.0) == 1.0
+    assert budget_ratio(110.0, 0.0, 1, 70.0) == 1.0             # one part fits the budget
+    assert budget_ratio(110.0, 0.0, 2, 70.0) == pytest.approx(55.0 / 70.0)
+    assert budget_ratio(110.0, 50.0, 3, 70.0) == pytest.approx(60.0 / 3 / 70.0)
+    assert budget_ratio(110.0, 200.0, 2, 70.0) == 0.05           # over budget: the floor, never zero
+    options = RefineOptions()
+    half = scaled_iterations(options, 0.5)
+    assert half.cross_mobile_iters == round(options.cross_mobile_iters * 0.5) and half.joint_restarts == options.joint_restarts
+    assert scaled_iterations(options, 0.001).per_state_iters == 1
+    assert scaled_iterations(options, 1.0) is options
+    with pytest.raises(ValueError, match="object_budget_seconds"):
+        RefineOptions(object_budget_seconds=0).validate()

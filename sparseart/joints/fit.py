@@ -18,6 +18,7 @@ both sets and divided by their RMS radius; results converted back at the end):
 """
 from __future__ import annotations
 
+import time
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -31,7 +32,7 @@ from sparseart.joints.register import register_rigid
 from sparseart.joints.screw import (apply_transform, make_transform, perturb_axis, screw_from_transform,
                                     tangent_basis, transform_from_prismatic, transform_from_revolute, unit)
 from sparseart.joints.select import select_joint_type
-from sparseart.joints.uncertainty import block_jackknife_covariance, spatial_blocks
+from sparseart.joints.uncertainty import block_jackknife_covariance, inlier_fraction, spatial_blocks
 from sparseart.sampling import random_subset
 from sparseart.types import JointEstimate
 
@@ -69,7 +70,8 @@ class FitConfig:
     small_angle_deg: float = 1.0
     few_points: int = 50
     uncertainty_resamples: int = 6
-    half_samples: int = 5
+    half_samples: int = 4
+    half_sample_points: int = 600
     robust_loss: str = "soft_l1"
     pair_tau_factor: float = 3.0
     normal_gate_deg: float = 45.0
@@ -203,8 +205,14 @@ class _Problem:
             backward_ok = np.abs(np.einsum("ij,ij->i", start_normals[backward] @ rotation.T, end_normals)) >= self.normal_cos
         return forward, backward, forward_ok.astype(float), backward_ok.astype(float)
 
-    def solve(self, x0: np.ndarray, f_scale: float, max_nfev: int):
-        return least_squares(self.residuals, x0, loss=self.loss, f_scale=f_scale, x_scale="jac",
+    def solve(self, x0: np.ndarray, f_scale: float, max_nfev: int, freeze: bool = False):
+        """Robust least squares from ``x0``; ``freeze``: Chamfer neighbours fixed at ``x0`` (cheap
+        residuals, for short warm-started refits)."""
+        function = self.residuals
+        if freeze and self.chamfer:
+            frozen = self.matches(x0)
+            function = lambda x: self.residuals(x, frozen)  # noqa: E731
+        return least_squares(function, x0, loss=self.loss, f_scale=f_scale, x_scale="jac",
                              max_nfev=max_nfev, method="trf")
 
 
@@ -304,40 +312,48 @@ def _fit_model(model, start, end, start_normals, end_normals, config: FitConfig,
     backward = np.abs(np.einsum("ij,ij->i", chamfer_end - moved_chamfer[backward_index],
                                 chamfer_normals[0][backward_index] @ rotation.T))
 
-    def half_sample_covariance(count: int, max_nfev: int = 8) -> np.ndarray:
-        """Spread of ``count`` refits on random halves of both states' matching and Chamfer
-        points, each re-matched (Hungarian) at the converged motion and solved warm-started from
-        it with at most ``max_nfev`` evaluations. Half-sample refits deviate from the full-data
-        solution with (about) the variance of the full-data estimate, so the covariance is the
-        mean outer product of the deviations. Own random generator: the fit is unchanged."""
+    def half_sample_covariance(count: int, max_points: int, max_nfev: int = 8) -> np.ndarray:
+        """Spread of ``count`` refits on random subsets (half, at most ``max_points`` per side) of
+        both states' matching and Chamfer points, each re-matched (Hungarian) at the converged
+        motion and solved warm-started from it with the Chamfer neighbours frozen (at most
+        ``max_nfev`` evaluations). A subset holding a fraction f of the points deviates from the
+        full-data solution with about (1/f - 1) x the variance of the full-data estimate (delete-d
+        jackknife), so the covariance is f/(1-f) x the mean outer product of the deviations.
+        Own random generator: the fit itself is unchanged. Cost per refit: O(m^3) Hungarian on m
+        points plus a small solve."""
         centred = model.recentred(x)
         half_rng = np.random.default_rng(config.seed + 7919)
+        size = max(min(len(match_start), len(match_end)) // 2, MIN_POINTS)
+        size = min(size, max_points)
+        fraction = size / max(min(len(match_start), len(match_end)), 1)
+        if fraction >= 1.0:
+            return np.zeros((x.size, x.size))
+        chamfer_size = max(min(min(len(chamfer_start), len(chamfer_end)) // 2, max_points), MIN_POINTS)
         deviations = []
         for _ in range(count):
-            half_start = half_rng.permutation(len(match_start))[: max(len(match_start) // 2, MIN_POINTS)]
-            half_end = half_rng.permutation(len(match_end))[: max(len(match_end) // 2, MIN_POINTS)]
+            half_start = half_rng.permutation(len(match_start))[:size]
+            half_end = half_rng.permutation(len(match_end))[:size]
             start_h, end_h = match_start[half_start], match_end[half_end]
             moved_h = start_h @ rotation.T + translation
-            rows_h, cols_h, tau_h = _hungarian_pairs(moved_h, end_h, cKDTree(end_h), floor, ceiling,
-                                                     config.pair_tau_factor,
-                                                     match_start_normals[half_start] @ rotation.T,
-                                                     match_end_normals[half_end], normal_cos)
+            rows_h, cols_h, _ = _hungarian_pairs(moved_h, end_h, cKDTree(end_h), floor, ceiling,
+                                                 config.pair_tau_factor, match_start_normals[half_start] @ rotation.T,
+                                                 match_end_normals[half_end], normal_cos)
             if len(rows_h) < MIN_POINTS:
                 continue
-            chamfer_s = half_rng.permutation(len(chamfer_start))[: max(len(chamfer_start) // 2, MIN_POINTS)]
-            chamfer_e = half_rng.permutation(len(chamfer_end))[: max(len(chamfer_end) // 2, MIN_POINTS)]
+            chamfer_s = half_rng.permutation(len(chamfer_start))[:chamfer_size]
+            chamfer_e = half_rng.permutation(len(chamfer_end))[:chamfer_size]
             half_problem = _Problem(centred, start_h[rows_h], end_h[cols_h],
                                     _pair_weights(model.kind, start_h[rows_h], end_h[cols_h], config.beta),
                                     chamfer_start[chamfer_s], chamfer_end[chamfer_e], config.chamfer_weight,
                                     config.robust_loss,
                                     (chamfer_normals[0][chamfer_s], chamfer_normals[1][chamfer_e])
                                     if config.normal_gate_deg < 90 else None, normal_cos)
-            refit = half_problem.solve(centred.x0, f_scale=f_scale, max_nfev=max_nfev)
+            refit = half_problem.solve(centred.x0, f_scale=f_scale, max_nfev=max_nfev, freeze=True)
             deviations.append(refit.x - centred.x0)
         if len(deviations) < 2:
             return np.zeros((x.size, x.size))
         deviations = np.array(deviations)
-        return deviations.T @ deviations / len(deviations)
+        return fraction / (1.0 - fraction) * deviations.T @ deviations / len(deviations)
 
     return {"model": model, "x": x, "covariance": covariance, "condition": condition,
             "resample_covariance": resample_covariance, "resample_blocks": blocks_used,
@@ -478,8 +494,14 @@ def fit_joint(
         diagnostics[f"{kind}_condition"] = fit["condition"]
     if "revolute" in fits:
         diagnostics["revolute_pivot_factor"] = _pivot_factor(fits["revolute"], start_n)
+        diagnostics["revolute_angle_deg"] = float(np.degrees(abs(fits["revolute"]["x"][4])))
+    diagnostics["inlier_fraction"] = inlier_fraction(start_n, end_n, fits[chosen]["rotation"],
+                                                     fits[chosen]["translation"])
     if config.half_samples >= 2:
-        fits[chosen]["half_covariance"] = fits[chosen]["half_sample_covariance"](config.half_samples)
+        began = time.perf_counter()
+        fits[chosen]["half_covariance"] = fits[chosen]["half_sample_covariance"](config.half_samples,
+                                                                                 config.half_sample_points)
+        diagnostics["half_sample_seconds"] = time.perf_counter() - began
     return _estimate(chosen, fits[chosen], start_n, scale, centre, config, warnings, diagnostics)
 
 

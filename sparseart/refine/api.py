@@ -38,6 +38,10 @@ class RefineOptions:
     randomised restarts of the joint Chamfer besides the seed. holdout_views: last views of each
     state kept out of fitting for PSNR (0 = use all). per_state / cross_static / cross_mobile /
     mobility_correction: switch stages. accept_margin / geometric_tolerance: acceptance guard.
+    object_budget_seconds: wall-time budget for all parts of one object (None = no budget). With
+    several movable parts each part gets an equal share; the iteration counts of a part are scaled
+    down (never up) by share / expected cost, the cost being re-estimated from the parts already
+    refined (``EXPECTED_PART_SECONDS`` before the first), and a warning says so.
     """
 
     long_side: int = 96
@@ -60,6 +64,7 @@ class RefineOptions:
     geometric_tolerance: float = 1.25
     threads: int = 2
     seed: int = 0
+    object_budget_seconds: float | None = 110.0
 
     def validate(self) -> "RefineOptions":
         for name in ("long_side", "max_gaussians", "threads"):
@@ -69,6 +74,8 @@ class RefineOptions:
                      "joint_chamfer_iters", "cross_mobile_iters", "holdout_views"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"refine option {name} must be >= 0, got {getattr(self, name)!r}")
+        if self.object_budget_seconds is not None and not self.object_budget_seconds > 0:
+            raise ValueError(f"refine option object_budget_seconds must be > 0 or None, got {self.object_budget_seconds!r}")
         if self.long_side < 16:
             raise ValueError(f"refine option long_side must be >= 16 px, got {self.long_side}")
         return self
@@ -293,6 +300,31 @@ def _accept(start, end, labels, part_id, seed, seed_params, problem, snapshot, o
                           views=problem.views, diagnostics=diagnostics, warnings=warnings)
 
 
+EXPECTED_PART_SECONDS = 70.0  # measured default cost of one part on 2 cores (refine_partnet_v4*.txt)
+ITERATION_FIELDS = ("per_state_iters", "static_chamfer_iters", "cross_static_iters", "joint_chamfer_iters",
+                    "cross_mobile_iters")
+
+
+def budget_ratio(budget: float | None, elapsed: float, parts_left: int, full_cost: float) -> float:
+    """Fraction in (0, 1] of the default iterations the next part may use so that the
+    ``parts_left`` parts share what is left of ``budget`` seconds, each costing ``full_cost``
+    seconds at full iterations. 1 without a budget; at least 0.05."""
+    if budget is None or parts_left <= 0 or full_cost <= 0:
+        return 1.0
+    share = max(budget - elapsed, 0.0) / parts_left
+    return float(min(1.0, max(0.05, share / full_cost)))
+
+
+def scaled_iterations(options: RefineOptions, ratio: float) -> RefineOptions:
+    """A copy of ``options`` with every ``*_iters`` count scaled by ``ratio`` (at least 1 where it was > 0)."""
+    from dataclasses import replace
+
+    if ratio >= 1.0:
+        return options
+    return replace(options, **{name: max(1, int(round(getattr(options, name) * ratio))) if getattr(options, name) > 0
+                               else 0 for name in ITERATION_FIELDS})
+
+
 def refine_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, parts: list[PartResult],
                  scene: Scene | None, options: RefineOptions | None, clock, warnings: list[str]) -> list[PartRefinement]:
     """Pipeline hook: refine every movable part that has a joint, in place.
@@ -316,11 +348,19 @@ def refine_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, p
     options = (options or RefineOptions()).validate()   # bad options are an error, not a per-part warning
     object_centre = np.median(start.points, axis=0)
     done = []
-    for part in parts:
-        if part.joint is None or part.spec.role != "movable":
-            continue
+    movable = [part for part in parts if part.joint is not None and part.spec.role == "movable"]
+    began, full_cost = time.perf_counter(), EXPECTED_PART_SECONDS
+    for k, part in enumerate(movable):
+        ratio = budget_ratio(options.object_budget_seconds, time.perf_counter() - began, len(movable) - k, full_cost)
+        part_options = scaled_iterations(options, ratio)
+        if ratio < 1.0:
+            warnings.append(f"part {part.spec.id}: refinement iterations scaled to {ratio:.0%} to keep the object "
+                            f"within {options.object_budget_seconds:.0f} s ({len(movable)} movable parts)")
+        part_began = time.perf_counter()
         try:
-            outcome = refine_part(start, end, labels, part.spec.id, part.joint, scene, options, clock, object_centre)
+            outcome = refine_part(start, end, labels, part.spec.id, part.joint, scene, part_options, clock,
+                                  object_centre)
+            full_cost = (time.perf_counter() - part_began) / max(ratio, 0.05)
         except (ValueError, np.linalg.LinAlgError) as error:
             warnings.append(f"part {part.spec.id}: refinement failed, seed joint kept: {error}")
             continue
