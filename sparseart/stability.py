@@ -9,11 +9,15 @@ angle error (deg), axis position error (part units; a prismatic answer: distance
 the true axis), state error (geodesic deg; a wrong type is charged the whole motion), chosen type,
 the Jacobian condition number of the chosen fit and the fitter's warnings.
 
-"Unreliable" is marked with the fitter's OWN warning thresholds (``FitConfig``): rotation below
-``small_angle_deg``, pivot farther than ``far_pivot_factor`` x the part radius, condition number
-above ``ILL_CONDITIONED``, a tiny slide, points removed by cleaning. A row is flagged "!" when one
-of those warnings fired; the report names the first flagged value of each sweep and, for
-comparison, the first value whose axis error exceeds the success threshold (10 deg).
+"Unreliable" is marked with the fitter's OWN warning thresholds (``FitConfig`` and the constants of
+``sparseart.joints.fit``, imported here, not copied): rotation below ``small_angle_deg``, pivot
+farther than ``far_pivot_factor`` x the part radius (also when a prismatic answer is given to a
+motion that turns about such a pivot), condition number above ``ILL_CONDITIONED``, outliers (more
+than ``MAX_SCATTER_FRACTION`` of the points off any surface and fewer than ``MIN_INLIER_FRACTION``
+landing on the other state under the fit), a stated uncertainty above ``MAX_AXIS_SIGMA_DEG`` /
+``MAX_RELATIVE_SIGMA`` of the estimate, a tiny slide, points removed by cleaning. A row is flagged
+"!" when one of those warnings fired; the report names the first flagged value of each sweep and,
+for comparison, the first value whose axis error exceeds the success threshold (10 deg).
 """
 from __future__ import annotations
 
@@ -24,13 +28,13 @@ from typing import Any
 
 import numpy as np
 
-from .joints.fit import FitConfig
+from .joints.fit import (ILL_CONDITIONED, MAX_AXIS_SIGMA_DEG, MAX_RELATIVE_SIGMA, MAX_SCATTER_FRACTION,
+                         MIN_INLIER_FRACTION, FitConfig)
 from .metrics import SUCCESS_AXIS_DEG, joint_errors
 from .scene import write_bytes_atomic, write_json_atomic
 
-ILL_CONDITIONED = 1e6  # fit.py warns above this Jacobian condition number
 UNRELIABLE_WORDS = ("poorly defined", "ambiguous", "ill-conditioned", "cleaning removed", "fragile",
-                    "collinear", "not a pure rotation")
+                    "collinear", "not a pure rotation", "unreliable", "uncertainty large")
 VIEWPOINT = np.array([0.4, 0.6, 3.0])
 SHAPES = {  # (size, centre) boxes, unit-size parts, asymmetric under 180-degree turns (as in the tests)
     "door": [((0.6, 1.0, 0.05), (0.0, 0.0, 0.0)), ((0.04, 0.2, 0.06), (0.2, 0.1, 0.055))],
@@ -154,6 +158,9 @@ def thresholds() -> dict[str, Any]:
     config = FitConfig()
     return {"small_angle_deg": config.small_angle_deg, "far_pivot_factor": config.far_pivot_factor,
             "ill_conditioned": ILL_CONDITIONED, "few_points": config.few_points,
+            "max_scatter_fraction": MAX_SCATTER_FRACTION, "min_inlier_fraction": MIN_INLIER_FRACTION,
+            "max_axis_sigma_deg": MAX_AXIS_SIGMA_DEG,
+            "max_relative_sigma": MAX_RELATIVE_SIGMA,
             "min_angle_deg (type test)": config.min_angle_deg, "angle_z (type test)": config.angle_z}
 
 

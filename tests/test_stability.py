@@ -165,3 +165,33 @@ def test_bad_inputs_raise():
         fit_joint(np.zeros((10, 2)), np.zeros((10, 2)))
     with pytest.raises(ValueError, match="joint_type"):
         fit_joint(np.zeros((10, 3)), np.zeros((10, 3)), joint_type="screw")
+
+
+def test_outlier_warning_seventy_five_percent():
+    """75 % uniform outliers: the fit may fail, but it must say so (same rule as the stability report)."""
+    from sparseart.joints.fit import MAX_SCATTER_FRACTION
+    from sparseart.stability import cases, run_case
+
+    case = next(c for c in cases() if c.sweep == "outliers" and c.value == 75.0)
+    row = run_case(case, count=800)
+    assert row["flagged"], row
+    assert any("many outliers" in w and f"> {100 * MAX_SCATTER_FRACTION:.0f} %" in w for w in row["warnings"]), row
+
+
+def test_far_pivot_twenty_part_sizes_warns():
+    """Pivot 20x the part size, 10 deg, 800 points: whichever type wins (it was silently
+    prismatic and 90 deg off), the revolute/prismatic ambiguity is stated."""
+    from sparseart.stability import cases, run_case
+
+    case = next(c for c in cases() if c.sweep == "pivot" and c.value == 20.0)
+    row = run_case(case, count=800)
+    assert row["flagged"], row
+    assert any("ambiguous" in w for w in row["warnings"]), row
+
+
+def test_clean_fit_has_no_reliability_warning():
+    """A plain door (35 deg, partial views, 1 mm noise) must not trip the new warnings."""
+    start, end = make_part("door", transform_from_revolute(DOOR_AXIS, DOOR_ORIGIN, np.radians(35)), seed=11)
+    estimate = fit_joint(start, end)
+    assert estimate.type == "revolute"
+    assert not warned(estimate, "unreliable", "uncertainty large", "ambiguous"), estimate.warnings
