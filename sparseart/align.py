@@ -262,7 +262,7 @@ def _angle_deg(rotation: np.ndarray) -> float:
 
 
 def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale: bool, seed: int = 0,
-                   geometry_fallback: bool = True) -> tuple[list[np.ndarray], list[str]]:
+                   geometry_fallback: bool = True, matcher=None) -> tuple[list[np.ndarray], list[str]]:
     """Bring the views of one state (one rigid scene) into the camera frame of view 0.
 
     Every pair of views is matched and fitted (:func:`fit_matches`); each view is reached from
@@ -278,6 +278,9 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
         frames, pointmaps: the V views; pointmaps in each view's OWN camera frame.
         with_scale: per-view scale (relative-scale reconstructions); folded into the transforms.
         geometry_fallback: allow the geometric registration of pairs without feature matches.
+        matcher: a pair matcher (``match(frame_a, pointmap_a, frame_b, pointmap_b) ->
+            FeatureMatches``, e.g. :class:`~sparseart.align_lightglue.LightGlueMatcher`) used
+            instead of SIFT; None = SIFT.
 
     Returns:
         ((4, 4) view_i camera frame -> view_0 camera frame for every view, identity first; warnings).
@@ -292,7 +295,8 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
         return [np.eye(4)], []
     clouds = [valid_points(p) for p in pointmaps]
     size = scene_size(np.concatenate(clouds))
-    features = [view_features(f, p) for f, p in zip(frames, pointmaps)]
+    features = None if matcher is not None else [view_features(f, p) for f, p in zip(frames, pointmaps)]
+    names = [str(f.rgb_path) for f in frames]
     weight = np.zeros((n, n))
     pair_model: dict[tuple[int, int], Similarity] = {}
     how: dict[tuple[int, int], str] = {}
@@ -305,10 +309,11 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
 
     pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
     for i, j in pairs:
-        matches = match_view_features(features[i], features[j])
+        matches = (matcher.match(frames[i], pointmaps[i], frames[j], pointmaps[j]) if matcher is not None
+                   else match_view_features(features[i], features[j]))
         try:
             model, inliers, _ = fit_matches(matches, with_scale=with_scale, size=size, seed=seed,
-                                            names_a=[features[i].name], names_b=[features[j].name])
+                                            names_a=[names[i]], names_b=[names[j]])
         except AlignmentError as error:
             reasons[i].append(str(error))
             reasons[j].append(str(error))
@@ -393,7 +398,7 @@ def _motion_candidates(points_a: np.ndarray, points_b_in_a: np.ndarray, total: i
 
 def align_states(start_frames: list[Frame], start_pointmaps: list[Pointmap], end_frames: list[Frame],
                  end_pointmaps: list[Pointmap], *, with_scale: bool, seed: int = 0,
-                 max_candidates: int = 6) -> StateAlignment:
+                 max_candidates: int = 6, matcher=None) -> StateAlignment:
     """Map the end state into the start state's frame through the static part.
 
     Every start view is matched against every end view and the matches are pooled; the dominant
@@ -404,25 +409,37 @@ def align_states(start_frames: list[Frame], start_pointmaps: list[Pointmap], end
 
     Args:
         start_pointmaps / end_pointmaps: in each state's own reference frame (its view 0).
+        matcher: a pair matcher used instead of SIFT (see :func:`register_views`); None = SIFT.
 
     Raises:
         AlignmentError: too few matches, no consensus, or degenerate inliers (naming the images).
     """
-    fa = [view_features(f, p) for f, p in zip(start_frames, start_pointmaps)]
-    fb = [view_features(f, p) for f, p in zip(end_frames, end_pointmaps)]
+    names_a = [str(f.rgb_path) for f in start_frames]
+    names_b = [str(f.rgb_path) for f in end_frames]
     parts, views_a, views_b = [], [], []
-    for i, a in enumerate(fa):
-        for j, b in enumerate(fb):
-            parts.append(match_view_features(a, b))
-            views_a.append(i)
-            views_b.append(j)
-    n_keypoints = (sum(f.pixels.shape[0] for f in fa), sum(f.pixels.shape[0] for f in fb))
+    if matcher is None:
+        fa = [view_features(f, p) for f, p in zip(start_frames, start_pointmaps)]
+        fb = [view_features(f, p) for f, p in zip(end_frames, end_pointmaps)]
+        for i, a in enumerate(fa):
+            for j, b in enumerate(fb):
+                parts.append(match_view_features(a, b))
+                views_a.append(i)
+                views_b.append(j)
+        n_keypoints = (sum(f.pixels.shape[0] for f in fa), sum(f.pixels.shape[0] for f in fb))
+    else:
+        for i, (frame_a, pointmap_a) in enumerate(zip(start_frames, start_pointmaps)):
+            for j, (frame_b, pointmap_b) in enumerate(zip(end_frames, end_pointmaps)):
+                parts.append(matcher.match(frame_a, pointmap_a, frame_b, pointmap_b))
+                views_a.append(i)
+                views_b.append(j)
+        n_keypoints = (max((p.n_keypoints[0] for p in parts), default=0) * len(start_frames),
+                       max((p.n_keypoints[1] for p in parts), default=0) * len(end_frames))
     matches = FeatureMatches.concatenate(parts, views_a, views_b, n_keypoints)
     size = scene_size(np.concatenate([valid_points(p) for p in start_pointmaps]))
     model, inliers, rmse = fit_matches(matches, with_scale=with_scale, size=size, seed=seed,
-                                       names_a=[f.name for f in fa], names_b=[f.name for f in fb])
+                                       names_a=names_a, names_b=names_b)
     warnings: list[str] = []
-    where = _describe([f.name for f in fa], [f.name for f in fb])
+    where = _describe(names_a, names_b)
     if with_scale and not SCALE_RANGE[0] <= model.scale <= SCALE_RANGE[1]:
         warnings.append(f"{where}: end-to-start scale {model.scale:.3g} is outside "
                         f"[{SCALE_RANGE[0]}, {SCALE_RANGE[1]}]; check the reconstructions")

@@ -99,7 +99,6 @@ def view_features(frame: Frame, pointmap: Pointmap, mask: np.ndarray | None = No
                   max_features: int = 4000) -> ViewFeatures:
     """Detect SIFT keypoints on valid (and masked) pixels and lift them. O(H W)."""
     import cv2
-    from scipy.ndimage import distance_transform_edt
 
     name = str(frame.rgb_path)
     height, width = pointmap.height, pointmap.width
@@ -123,15 +122,31 @@ def view_features(frame: Frame, pointmap: Pointmap, mask: np.ndarray | None = No
     descriptors = descriptors.astype(np.float32)
     descriptors /= np.maximum(descriptors.sum(axis=1, keepdims=True), 1e-12)
     descriptors = np.sqrt(descriptors)
+    return ViewFeatures(name, pixels, descriptors, lift_pixels(pointmap, pixels, valid))
+
+
+def lift_pixels(pointmap: Pointmap, pixels: np.ndarray, valid: np.ndarray | None = None) -> np.ndarray:
+    """3D points (K, 3) float64 (pointmap's frame) of (K, 2) x, y pixel positions: the point of the
+    nearest valid pixel within ``LIFT_RADIUS_PX``, NaN where none is that close (or the pixel lies
+    outside the image). valid: (H, W) bool, default the pointmap's. O(H W) distance transform."""
+    from scipy.ndimage import distance_transform_edt
+
+    height, width = pointmap.height, pointmap.width
+    pixels = np.asarray(pixels, np.float64).reshape(-1, 2)
+    valid = _valid_image(pointmap, None) if valid is None else valid
+    points = np.full((len(pixels), 3), np.nan)
+    if len(pixels) == 0 or not valid.any():
+        return points
     # Nearest valid pixel of every pixel (exact Euclidean distance transform, O(H W)).
     distance, (rows, cols) = distance_transform_edt(~valid, return_indices=True)
-    r = np.clip(np.rint(pixels[:, 1]).astype(int), 0, height - 1)
-    c = np.clip(np.rint(pixels[:, 0]).astype(int), 0, width - 1)
-    near = distance[r, c] <= LIFT_RADIUS_PX
+    x, y = np.nan_to_num(pixels[:, 0], nan=-1.0), np.nan_to_num(pixels[:, 1], nan=-1.0)
+    inside = (x >= -0.5) & (x <= width - 0.5) & (y >= -0.5) & (y <= height - 0.5)
+    r = np.rint(y.clip(0, height - 1)).astype(int)
+    c = np.rint(x.clip(0, width - 1)).astype(int)
+    near = inside & (distance[r, c] <= LIFT_RADIUS_PX)
     index = rows[r, c] * width + cols[r, c]
-    points = np.full((len(keypoints), 3), np.nan)
     points[near] = pointmap.points[index[near]]
-    return ViewFeatures(name, pixels, descriptors, points)
+    return points
 
 
 def match_view_features(a: ViewFeatures, b: ViewFeatures, ratio: float = 0.75) -> FeatureMatches:

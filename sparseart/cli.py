@@ -40,6 +40,11 @@ def _parser() -> argparse.ArgumentParser:
     onnx.add_argument("--conf-threshold", type=float, default=None,
                       help="drop pixels whose confidence (mapped to [0, 1]) is below this")
     onnx.add_argument("--threads", type=int, default=0, help="onnxruntime threads (0 = physical cores)")
+    onnx.add_argument("--matcher", type=Path, default=None,
+                      help="LightGlue-ONNX pipeline export (.onnx) to match images of unposed scenes "
+                           "instead of SIFT")
+    onnx.add_argument("--matcher-min-score", type=float, default=None,
+                      help="drop LightGlue matches scoring below this (default 0.1)")
     vlm = run.add_argument_group("part labeler")
     vlm.add_argument("--labeler", choices=["rules", "vlm"], default="rules",
                      help="rules (default, no model) or vlm (OpenAI-compatible chat API; key from "
@@ -117,7 +122,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     refine_options, render_states = _refine_settings(args) if args.refine else (None, ())
     options = RunOptions(joint_type=args.joint_type, use_masks=not args.no_masks, seed=args.seed,
                          refine=args.refine, refine_options=refine_options, segmenter=args.segmenter,
-                         model=args.model, onnx_options=_onnx_settings(args))
+                         model=args.model, onnx_options=_onnx_settings(args), matcher=args.matcher,
+                         matcher_options=_matcher_settings(args))
     result = run(args.scene, labeler=_labeler(args), options=options)
     path = write_articulation(result, args.out)
     if args.refine:
@@ -132,6 +138,22 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print("\n".join(summary_lines(result)))
         print(f"wrote {path}" + "".join(f", {extra}" for extra in extras))
     return 0
+
+
+def _matcher_settings(args: argparse.Namespace):
+    """LightGlueOptions from --matcher-min-score/--threads (None without --matcher)."""
+    if args.matcher is None:
+        if args.matcher_min_score is not None:
+            raise SceneError("--matcher-min-score needs --matcher")
+        return None
+    from .align_lightglue import DEFAULT_MIN_SCORE, LightGlueOptions
+
+    score = DEFAULT_MIN_SCORE if args.matcher_min_score is None else args.matcher_min_score
+    if not 0.0 <= score <= 1.0:
+        raise SceneError(f"--matcher-min-score must lie in [0, 1], got {score}")
+    if args.threads < 0:
+        raise SceneError(f"--threads must be >= 0, got {args.threads}")
+    return LightGlueOptions(threads=args.threads, min_score=score)
 
 
 def _onnx_settings(args: argparse.Namespace):

@@ -39,6 +39,9 @@ class RunOptions:
         or "none" (same as ``use_masks=False``).
     model: an ONNX reconstructor (.onnx) for RGB-only scenes (see models/README.md);
         onnx_options: its :class:`~sparseart.lift.onnx_model.OnnxLiftOptions`.
+    matcher: an ONNX LightGlue pipeline export (.onnx) matching the images of unposed scenes
+        instead of SIFT (see :mod:`sparseart.align_lightglue`); matcher_options: its
+        :class:`~sparseart.align_lightglue.LightGlueOptions`.
     seed: random seed for every sub-sampling step (results are deterministic for a seed).
     refine: run the SPLART refinement (needs torch and the scene's images); refine_options: its
         :class:`~sparseart.refine.RefineOptions`.
@@ -50,6 +53,8 @@ class RunOptions:
     segmenter: str = "auto"
     model: str | Path | None = None
     onnx_options: object | None = None  # sparseart.lift.onnx_model.OnnxLiftOptions; None = its defaults
+    matcher: str | Path | None = None
+    matcher_options: object | None = None  # sparseart.align_lightglue.LightGlueOptions; None = defaults
     seed: int = 0
     refine: bool = False
     refine_options: object | None = None  # sparseart.refine.RefineOptions (torch); None = its defaults
@@ -103,7 +108,8 @@ def run(scene: Scene | str | Path, labeler: PartLabeler | None = None,
     _segment(scene, options, clock)
     with clock.stage("lift", _lift_reason(scene, options)):
         lifted = lift_scene(scene, reject_flying_pixels=options.reject_flying_pixels, model=options.model,
-                            onnx_options=options.onnx_options, seed=options.seed)
+                            onnx_options=options.onnx_options, seed=options.seed,
+                            matcher=options.matcher, matcher_options=options.matcher_options)
     for name, seconds in lifted.seconds.items():
         clock.records.append(StageRecord(f"lift.{name}", True, seconds, _SUBSTAGE_WHY.get(name, name)))
     if options.model is None:

@@ -56,7 +56,8 @@ class LiftedScene:
 
 
 def lift_scene(scene: Scene, *, reject_flying_pixels: bool = True, model: str | Path | None = None,
-               onnx_options=None, seed: int = 0) -> LiftedScene:
+               onnx_options=None, seed: int = 0, matcher: str | Path | None = None,
+               matcher_options=None) -> LiftedScene:
     """Lift a loaded scene into two labelled clouds (masks already set on the frames).
 
     Args:
@@ -65,13 +66,18 @@ def lift_scene(scene: Scene, *, reject_flying_pixels: bool = True, model: str | 
         model: an ONNX reconstructor (.onnx path); required when the scene has no depth.
         onnx_options: :class:`~sparseart.lift.onnx_model.OnnxLiftOptions` (None: defaults).
         seed: random seed of the RANSAC steps.
+        matcher: an ONNX LightGlue pipeline export used instead of SIFT to register views and align
+            the states (opened only when the scene needs alignment); matcher_options: its
+            :class:`~sparseart.align_lightglue.LightGlueOptions`.
 
     Raises:
         SceneError (incl. ModelError, AlignmentError for a view that cannot be registered): one
         line naming the file.
     """
+    needs_matcher = matcher is not None and (model is not None or not scene.posed)
+    pair_matcher = _open_matcher(matcher, matcher_options) if needs_matcher else None
     if model is not None:
-        lifted = _lift_with_model(scene, model, onnx_options, reject_flying_pixels, seed)
+        lifted = _lift_with_model(scene, model, onnx_options, reject_flying_pixels, seed, pair_matcher)
     elif not scene.has_depth:
         missing = next(f for f in scene.all_frames if f.depth is None)
         raise SceneError(f"{missing.rgb_path}: no depth image and no reconstructor given "
@@ -79,12 +85,21 @@ def lift_scene(scene: Scene, *, reject_flying_pixels: bool = True, model: str | 
     elif scene.posed:
         lifted = _lift_posed_rgbd(scene, reject_flying_pixels)
     else:
-        lifted = _lift_unposed_rgbd(scene, reject_flying_pixels, seed)
+        lifted = _lift_unposed_rgbd(scene, reject_flying_pixels, seed, pair_matcher)
+    if matcher is not None and not needs_matcher:
+        lifted.warnings.append("--matcher not used: every image has a camera pose, so nothing is aligned")
     for cloud, state in ((lifted.start, "start"), (lifted.end, "end")):
         if len(cloud) < MIN_STATE_POINTS:
             raise SceneError(f"{scene.root / state}: only {len(cloud)} valid 3D points after removing "
                              f"invalid, low-confidence and flying pixels")
     return lifted
+
+
+def _open_matcher(matcher: str | Path, matcher_options):
+    """A :class:`~sparseart.align_lightglue.LightGlueMatcher` (ModelError for a bad model)."""
+    from ..align_lightglue import LightGlueMatcher
+
+    return LightGlueMatcher(matcher, matcher_options)
 
 
 def _clouds(scene: Scene, pointmaps: dict[str, list[Pointmap]]) -> tuple[LabelledCloud, LabelledCloud]:
@@ -104,7 +119,7 @@ def _camera_reference(scene: Scene) -> str:
     return "OpenCV frame of start/rgb/" + scene.start[0].rgb_path.name
 
 
-def _lift_unposed_rgbd(scene: Scene, reject_flying_pixels: bool, seed: int) -> LiftedScene:
+def _lift_unposed_rgbd(scene: Scene, reject_flying_pixels: bool, seed: int, matcher=None) -> LiftedScene:
     """Camera-frame unprojection, views registered within each state, then the states aligned."""
     from ..align import AlignmentError, register_views, transform_pointmap
 
@@ -117,7 +132,8 @@ def _lift_unposed_rgbd(scene: Scene, reject_flying_pixels: bool, seed: int) -> L
         own = [pointmap_from_depth(f, np.eye(4), reject_flying_pixels) for f in frames]
         if len(frames) > 1:
             try:
-                transforms, view_warnings = register_views(frames, own, with_scale=False, seed=seed)
+                transforms, view_warnings = register_views(frames, own, with_scale=False, seed=seed,
+                                                           matcher=matcher)
             except AlignmentError as error:
                 warnings.append(f"{state}: views could not be registered ({error}); only "
                                 f"{state}/rgb/{frames[0].rgb_path.name} is used")
@@ -128,11 +144,11 @@ def _lift_unposed_rgbd(scene: Scene, reject_flying_pixels: bool, seed: int) -> L
         pointmaps[state] = own
     seconds["register_views"] = time.perf_counter() - began
     return _align_states(scene, pointmaps, with_scale=False, units="metres", seed=seed,
-                         seconds=seconds, warnings=warnings)
+                         seconds=seconds, warnings=warnings, matcher=matcher)
 
 
 def _align_states(scene: Scene, pointmaps: dict[str, list[Pointmap]], *, with_scale: bool, units: str,
-                  seed: int, seconds: dict[str, float], warnings: list[str]) -> LiftedScene:
+                  seed: int, seconds: dict[str, float], warnings: list[str], matcher=None) -> LiftedScene:
     """End pointmaps (end view-0 frame) -> start view-0 frame by feature alignment; on failure
     (too few matches, degenerate) keep them as they are and say so (alignment "none")."""
     from ..align import AlignmentError, align_states, transform_pointmap
@@ -142,7 +158,7 @@ def _align_states(scene: Scene, pointmaps: dict[str, list[Pointmap]], *, with_sc
     try:
         alignment = align_states(scene.start[:len(pointmaps["start"])], pointmaps["start"],
                                  scene.end[:len(pointmaps["end"])], pointmaps["end"],
-                                 with_scale=with_scale, seed=seed)
+                                 with_scale=with_scale, seed=seed, matcher=matcher)
     except AlignmentError as error:
         seconds["align_states"] = time.perf_counter() - began
         if with_scale:
@@ -176,7 +192,7 @@ def _with_depth(pointmap: Pointmap, camera) -> Pointmap:
 
 
 def _lift_with_model(scene: Scene, model: str | Path, onnx_options, reject_flying_pixels: bool,
-                     seed: int) -> LiftedScene:
+                     seed: int, matcher=None) -> LiftedScene:
     from .onnx_model import OnnxLiftOptions, lift_scene_with_model
 
     options = onnx_options or OnnxLiftOptions(reject_flying_pixels=reject_flying_pixels)
@@ -195,6 +211,6 @@ def _lift_with_model(scene: Scene, model: str | Path, onnx_options, reject_flyin
                            seconds=seconds, warnings=warnings,
                            diagnostics={"contract": lift.contract, "mode": lift.frame})
     lifted = _align_states(scene, pointmaps, with_scale=lift.scale != "metric", units=units, seed=seed,
-                           seconds=seconds, warnings=warnings)
+                           seconds=seconds, warnings=warnings, matcher=matcher)
     lifted.diagnostics.update(contract=lift.contract, mode=lift.frame)
     return lifted
