@@ -135,3 +135,23 @@ def test_static_axis_seeds_point_along_the_slide() -> None:
     assert len(_static_axis_seeds(joint, static)) == 2
     joint.type = "revolute"
     assert _static_axis_seeds(joint, static) == []
+
+
+def test_rival_slides_widen_the_axis_uncertainty() -> None:
+    """A slide that another direction >= 10 deg away explains within +10 % residual gets its axis
+    sigma raised to that angle and a warning; close rivals or worse rivals change nothing."""
+    from sparseart.pipeline import _widen_for_rival_slides
+    from sparseart.types import JointEstimate
+
+    def slide(degrees: float, residual: float) -> JointEstimate:
+        axis = np.array([np.cos(np.radians(degrees)), np.sin(np.radians(degrees)), 0.0])
+        return JointEstimate(type="prismatic", axis=axis, origin=np.zeros(3), angle=None, distance=0.2,
+                             transform=np.eye(4), uncertainty={"axis_deg": 0.7, "origin": 0.0, "distance": 0.002},
+                             residual=residual, confidence=1.0)
+
+    chosen = slide(0.0, 0.0100)
+    _widen_for_rival_slides(chosen, [chosen, slide(4.0, 0.0101), slide(30.0, 0.0120)])
+    assert chosen.uncertainty["axis_deg"] == 0.7 and not chosen.warnings
+    _widen_for_rival_slides(chosen, [chosen, slide(18.0, 0.0105)])
+    assert chosen.uncertainty["axis_deg"] == pytest.approx(18.0)
+    assert "18.0 deg away fits almost as well (residual +5 %)" in chosen.warnings[0]
