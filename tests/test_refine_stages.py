@@ -122,3 +122,25 @@ def test_object_budget_shares_iterations_between_parts():
     assert scaled_iterations(options, 1.0) is options
     with pytest.raises(ValueError, match="object_budget_seconds"):
         RefineOptions(object_budget_seconds=0).validate()
+
+
+def test_sigma_moves_measures_the_refined_joint_in_seed_sigmas():
+    """Axis angle, pivot offset from the refined line and state change, each over its sigma; an
+    axis of opposite sign is the same line (the state's sign follows)."""
+    from sparseart.refine.api import sigma_moves
+
+    seed = {"type": "revolute", "axis": np.array([0.0, 0.0, 1.0]), "origin": np.zeros(3), "angle": 0.5,
+            "distance": None}
+    tilt = np.radians(2.0)
+    refined = {"type": "revolute", "axis": -np.array([np.sin(tilt), 0.0, np.cos(tilt)]),
+               "origin": np.array([0.0, 0.03, 5.0]), "angle": -0.52, "distance": None}
+    moves = sigma_moves(seed, refined, {"axis_deg": 0.5, "origin": 0.01, "angle": 0.01})
+    assert moves["axis"] == pytest.approx(4.0, rel=1e-6)
+    assert moves["origin"] == pytest.approx(np.hypot(0.03, 5.0 * np.sin(tilt)) / 0.01, rel=1e-9)
+    assert moves["angle"] == pytest.approx(2.0, rel=1e-6)
+    slide = {"type": "prismatic", "axis": np.array([1.0, 0.0, 0.0]), "origin": np.zeros(3), "angle": None,
+             "distance": 0.20}
+    moved = dict(slide, distance=0.203)
+    assert sigma_moves(slide, moved, {"axis_deg": 1.0, "distance": 0.001}) == pytest.approx(
+        {"axis": 0.0, "distance": 3.0})
+    assert "distance" not in sigma_moves(slide, moved, {"axis_deg": 1.0})     # no sigma, no term

@@ -204,7 +204,7 @@ def icp_peer(start: LabelledCloud, end: LabelledCloud, labels: PartLabels | None
     ``sparseart.evaluate.evaluate`` scores it unchanged. Parts that fail get a warning, no joint.
     """
     options = options or PeerOptions()
-    records = [s for s in (stages or []) if s.name not in ("fit", "refine")]
+    records = [s for s in (stages or []) if s.name != "fit" and s.name.split(".")[0] != "refine"]
     warnings: list[str] = []
     began = time.perf_counter()
     if options.segmentation == "motion":
