@@ -61,6 +61,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="with --refine: articulation states to render, fractions of the motion (default 0,0.5,1)")
     run.add_argument("--refine-iters", type=int, default=None,
                      help="with --refine: cross-mobile rendering steps; the other stages scale with it (default 80)")
+    run.add_argument("--refine-budget", type=float, default=None,
+                     help="with --refine: seconds for all parts of the object, shared between them "
+                          "(default 100; 0 = no budget)")
     run.add_argument("--refine-holdout", type=int, default=0,
                      help="with --refine: last views per state held out of fitting for PSNR (default 0)")
     run.add_argument("--urdf", action="store_true", help="also write object.urdf + meshes/ (part point clouds)")
@@ -250,6 +253,10 @@ def _refine_settings(args: argparse.Namespace):
         options.cross_static_iters = int(round(defaults.cross_static_iters * ratio))
     if args.refine_holdout < 0:
         raise SceneError(f"--refine-holdout must be >= 0, got {args.refine_holdout}")
+    if args.refine_budget is not None:
+        if not math.isfinite(args.refine_budget) or args.refine_budget < 0:
+            raise SceneError(f"--refine-budget must be >= 0 seconds, got {args.refine_budget}")
+        options.object_budget_seconds = args.refine_budget or None
     return options, states
 
 

@@ -144,3 +144,20 @@ def test_sigma_moves_measures_the_refined_joint_in_seed_sigmas():
     assert sigma_moves(slide, moved, {"axis_deg": 1.0, "distance": 0.001}) == pytest.approx(
         {"axis": 0.0, "distance": 3.0})
     assert "distance" not in sigma_moves(slide, moved, {"axis_deg": 1.0})     # no sigma, no term
+
+
+def test_refine_budget_flag(tiny_scene, tmp_path):
+    """--refine-budget sets the per-object budget (0 = none); a negative one is a clear error."""
+    import argparse
+
+    from sparseart import cli
+
+    def settings(budget):
+        args = argparse.Namespace(render_states="0,1", seed=0, refine_holdout=0, refine_iters=None,
+                                  refine_budget=budget)
+        return cli._refine_settings(args)[0].object_budget_seconds
+
+    assert settings(None) == 100.0 and settings(45.0) == 45.0 and settings(0.0) is None
+    assert cli.main(["run", str(tiny_scene), "--out", str(tmp_path / "bad"), "--refine",
+                     "--refine-budget", "-5"]) == 2
+    assert not (tmp_path / "bad").exists()
