@@ -26,6 +26,7 @@ import argparse
 import json
 import platform
 import sys
+import tempfile
 import time
 from datetime import date
 from pathlib import Path
@@ -195,7 +196,7 @@ def report(rows: list[dict], before: list[dict] | None, seed: int = 0) -> str:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("objects", nargs="*")
-    parser.add_argument("--scenes", type=Path, default=Path("/work/scratch/unc_scenes"))
+    parser.add_argument("--scenes", type=Path, default=None, help="render cache (default: a temporary folder)")
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--save-rows", type=Path, default=None)
     parser.add_argument("--before", type=Path, default=None)
@@ -204,11 +205,12 @@ def main() -> int:
     args = parser.parse_args()
     names = args.objects or sorted(p.name for p in PARTNET.iterdir() if (p / "mobility.urdf").exists())
     setting = BenchSetting(seed=args.seed)
+    scenes = args.scenes or Path(tempfile.mkdtemp(prefix="sparseart_unc_"))
     rows = []
     with FitClock() as clock:
         for name in names:
             began = time.perf_counter()
-            rows.extend(joint_rows(PARTNET / name, args.scenes, setting))
+            rows.extend(joint_rows(PARTNET / name, scenes, setting))
             print(f"{name}: {time.perf_counter() - began:.1f}s", file=sys.stderr, flush=True)
     if args.save_rows:
         args.save_rows.write_text(json.dumps(rows, indent=1, default=str))
