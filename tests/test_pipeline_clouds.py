@@ -155,3 +155,16 @@ def test_rival_slides_widen_the_axis_uncertainty() -> None:
     _widen_for_rival_slides(chosen, [chosen, slide(18.0, 0.0105)])
     assert chosen.uncertainty["axis_deg"] == pytest.approx(18.0)
     assert "18.0 deg away fits almost as well (residual +5 %)" in chosen.warnings[0]
+
+
+def test_fallback_base_prefers_the_pair_that_staying_put_explains() -> None:
+    """When no pair passed the static test, the base is the pair whose identity score is >= 80 % of
+    its registered score (noisy depth: measured laptop base 0.33 vs a spurious motion's 0.38),
+    else the largest pair as before."""
+    from sparseart.labelers.rules import _fallback_base, _Group
+
+    groups = [_Group(indices=np.arange(30000), segments=[0]), _Group(indices=np.arange(650), segments=[1])]
+    lid, base = (0, 0, np.eye(4), 0.69), (1, 1, np.eye(4), 0.38)
+    assert _fallback_base([lid, base], groups, {(0, 0): 0.08, (1, 1): 0.33}) is base
+    assert _fallback_base([lid, base], groups, {(0, 0): 0.08, (1, 1): 0.20}) is lid   # largest
+    assert _fallback_base([lid, base], groups, {}) is lid
