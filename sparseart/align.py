@@ -416,24 +416,23 @@ def align_states(start_frames: list[Frame], start_pointmaps: list[Pointmap], end
     """
     names_a = [str(f.rgb_path) for f in start_frames]
     names_b = [str(f.rgb_path) for f in end_frames]
-    parts, views_a, views_b = [], [], []
     if matcher is None:
         fa = [view_features(f, p) for f, p in zip(start_frames, start_pointmaps)]
         fb = [view_features(f, p) for f, p in zip(end_frames, end_pointmaps)]
-        for i, a in enumerate(fa):
-            for j, b in enumerate(fb):
-                parts.append(match_view_features(a, b))
-                views_a.append(i)
-                views_b.append(j)
-        n_keypoints = (sum(f.pixels.shape[0] for f in fa), sum(f.pixels.shape[0] for f in fb))
+
+        def match(i: int, j: int) -> FeatureMatches:
+            return match_view_features(fa[i], fb[j])
     else:
-        for i, (frame_a, pointmap_a) in enumerate(zip(start_frames, start_pointmaps)):
-            for j, (frame_b, pointmap_b) in enumerate(zip(end_frames, end_pointmaps)):
-                parts.append(matcher.match(frame_a, pointmap_a, frame_b, pointmap_b))
-                views_a.append(i)
-                views_b.append(j)
-        n_keypoints = (max((p.n_keypoints[0] for p in parts), default=0) * len(start_frames),
-                       max((p.n_keypoints[1] for p in parts), default=0) * len(end_frames))
+        def match(i: int, j: int) -> FeatureMatches:
+            return matcher.match(start_frames[i], start_pointmaps[i], end_frames[j], end_pointmaps[j])
+    views = [(i, j) for i in range(len(start_frames)) for j in range(len(end_frames))]
+    parts = [match(i, j) for i, j in views]
+    views_a, views_b = [i for i, _ in views], [j for _, j in views]
+    # Keypoints per image, each image counted once (a pair reports (K_a, K_b)).
+    per_a, per_b = [0] * len(start_frames), [0] * len(end_frames)
+    for (i, j), part in zip(views, parts):
+        per_a[i], per_b[j] = part.n_keypoints
+    n_keypoints = (sum(per_a), sum(per_b))
     matches = FeatureMatches.concatenate(parts, views_a, views_b, n_keypoints)
     size = scene_size(np.concatenate([valid_points(p) for p in start_pointmaps]))
     model, inliers, rmse = fit_matches(matches, with_scale=with_scale, size=size, seed=seed,

@@ -14,6 +14,7 @@ from typing import Iterator
 import numpy as np
 
 from .labelers.base import PartLabeler
+from .metrics import axis_angle_error_deg
 from .lift.labels import build_labelled_cloud
 from .lift.rgbd import pointmap_from_depth
 from .types import (JOINT_TYPES, Articulation, JointEstimate, LabelledCloud, PartLabels, PartResult,
@@ -407,7 +408,7 @@ def _widen_for_rival_slides(chosen: JointEstimate, fits: list[JointEstimate]) ->
               and f.residual <= RIVAL_SLIDE_RESIDUAL_RATIO * chosen.residual]
     if not rivals:
         return
-    angles = [float(np.degrees(np.arccos(np.clip(abs(float(f.axis @ chosen.axis)), 0.0, 1.0)))) for f in rivals]
+    angles = [axis_angle_error_deg(f.axis, chosen.axis) for f in rivals]
     widest = max(angles)
     if widest < RIVAL_SLIDE_MIN_DEG:
         return
@@ -445,7 +446,7 @@ def _static_axis_seeds(joint: JointEstimate, static_points: np.ndarray | None) -
     seeds = []
     for axis in axes.T:
         axis = axis if float(axis @ slide) >= 0 else -axis
-        if np.degrees(np.arccos(np.clip(abs(float(axis @ joint.axis)), -1.0, 1.0))) < STATIC_AXIS_SEED_MIN_DEG:
+        if axis_angle_error_deg(axis, joint.axis) < STATIC_AXIS_SEED_MIN_DEG:
             continue
         seed = np.eye(4)
         seed[:3, 3] = axis * abs(float(joint.distance))

@@ -640,8 +640,9 @@ def _estimate(kind: str, fit: dict, start_n: np.ndarray, scale: float, centre: n
     residual = float(np.sqrt(np.mean(fit["pair_residual"] ** 2))) if fit["pairs"] else float("inf")
     jacobian_covariance = fit["covariance"]
     half_covariance = fit.get("half_covariance", np.zeros_like(jacobian_covariance))
-    floor_covariance = _floor_covariance(kind, residual, part_radius) if config.uncertainty_floor else 0.0
-    covariance = jacobian_covariance + fit["resample_covariance"] + half_covariance + floor_covariance
+    floor_covariance = _floor_covariance(kind, residual, part_radius)
+    covariance = (jacobian_covariance + fit["resample_covariance"] + half_covariance
+                  + (floor_covariance if config.uncertainty_floor else 0.0))
     eigen = np.sort(np.linalg.eigvalsh(np.cov((start_n - reference).T)))[::-1]
     if eigen[1] < 1e-4 * eigen[0]:
         warnings.append("part is nearly collinear (thin rod): rotation about its own line is unobservable")
@@ -660,7 +661,7 @@ def _estimate(kind: str, fit: dict, start_n: np.ndarray, scale: float, centre: n
         sigma_parts = {"uncertainty_jacobian": _revolute_sigma(jacobian_covariance, scale),
                        "uncertainty_resample": _revolute_sigma(fit["resample_covariance"], scale),
                        "uncertainty_half": _revolute_sigma(half_covariance, scale),
-                       "uncertainty_floor": _revolute_sigma(_floor_covariance(kind, residual, part_radius), scale)}
+                       "uncertainty_floor": _revolute_sigma(floor_covariance, scale)}
         if np.degrees(angle) < config.small_angle_deg:
             warnings.append(f"rotation of {np.degrees(angle):.3g} deg < {config.small_angle_deg} deg: axis poorly defined")
         pivot_distance = float(np.linalg.norm(pivot - reference))
@@ -681,8 +682,7 @@ def _estimate(kind: str, fit: dict, start_n: np.ndarray, scale: float, centre: n
         sigma_parts = {"uncertainty_jacobian": _prismatic_sigma(jacobian_covariance, scale, origin_sigma),
                        "uncertainty_resample": _prismatic_sigma(fit["resample_covariance"], scale, 0.0),
                        "uncertainty_half": _prismatic_sigma(half_covariance, scale, 0.0),
-                       "uncertainty_floor": _prismatic_sigma(_floor_covariance(kind, residual, part_radius), scale,
-                                                             0.0)}
+                       "uncertainty_floor": _prismatic_sigma(floor_covariance, scale, 0.0)}
         jacobian_distance_sigma = sigma_parts["uncertainty_jacobian"]["distance"] / scale
         if distance < 3.0 * max(jacobian_distance_sigma, residual / np.sqrt(max(fit["pairs"], 1))):
             warnings.append(f"slide of {distance * scale:.3g} is tiny compared with the noise: axis poorly defined")

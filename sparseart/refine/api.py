@@ -269,6 +269,8 @@ def sigma_moves(before: dict, after: dict, uncertainty: dict[str, float]) -> dic
     Both dicts: type, axis (3,), origin (3,), angle (rad) | distance (scene units). Axes of
     opposite sign are compared as one line (the state's sign follows). Components without a
     positive sigma are left out. O(1)."""
+    from ..metrics import axis_angle_error_deg
+
     axis_b = np.asarray(before["axis"], np.float64)
     axis_a = np.asarray(after["axis"], np.float64)
     axis_b, axis_a = axis_b / np.linalg.norm(axis_b), axis_a / np.linalg.norm(axis_a)
@@ -280,7 +282,7 @@ def sigma_moves(before: dict, after: dict, uncertainty: dict[str, float]) -> dic
         if sigma > 0 and np.isfinite(sigma):
             moves[name] = float(amount) / sigma
 
-    add("axis", np.degrees(np.arccos(np.clip(abs(float(axis_a @ axis_b)), 0.0, 1.0))), "axis_deg")
+    add("axis", axis_angle_error_deg(axis_a, axis_b), "axis_deg")
     if before["type"] == "revolute":
         offset = np.asarray(before["origin"], np.float64) - np.asarray(after["origin"], np.float64)
         add("origin", np.linalg.norm(offset - (offset @ axis_a) * axis_a), "origin")
@@ -308,9 +310,8 @@ def _accept(start, end, labels, part_id, seed, seed_params, problem, snapshot, o
     finite = all(np.all(np.isfinite(v)) for v in after.values() if isinstance(v, (np.ndarray, float)))
     moves = sigma_moves(before, after, seed.uncertainty) if finite else {}
     reach = max(moves.values(), default=0.0)
-    margin = options.accept_margin
     tolerance = options.geometric_tolerance if reach <= 1.0 else 1.0
-    better_render = render_after < (1.0 - margin) * render_before
+    better_render = render_after < (1.0 - options.accept_margin) * render_before
     geometry_ok = geometric_after <= tolerance * geometric_before + 1e-12
     accepted = bool(options.cross_mobile and finite and better_render and geometry_ok)
     if not options.cross_mobile:
@@ -320,7 +321,7 @@ def _accept(start, end, labels, part_id, seed, seed_params, problem, snapshot, o
     else:
         why = ("kept the seed joint: the refined joint " +
                ("is not finite" if not finite else
-                f"does not lower the rendering loss by {margin:.1%} "
+                f"does not lower the rendering loss by {options.accept_margin:.1%} "
                 f"({render_after:.5f} vs {render_before:.5f}; it moves {reach:.1f} sigma from the seed)"
                 if not better_render else
                 f"raises the geometric residual {geometric_after:.5f} vs {geometric_before:.5f} "
@@ -334,7 +335,7 @@ def _accept(start, end, labels, part_id, seed, seed_params, problem, snapshot, o
     diagnostics = {"accepted": accepted, "why": why, "before": _as_jsonable(before), "after": _as_jsonable(after),
                    "render_loss": {"seed": render_before, "refined": render_after},
                    "geometric_residual": {"seed": geometric_before, "refined": geometric_after},
-                   "sigma_moves": moves, "required_render_gain": margin,
+                   "sigma_moves": moves,
                    "uncertainty": "carried over from the seed fit"}
     warnings = [] if accepted or not options.cross_mobile else [f"refine: {why}"]
     params = problem.joint if accepted else seed_params
