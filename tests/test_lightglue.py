@@ -17,6 +17,7 @@ from lightglue_builders import build_lightglue, build_split_extractor
 from sparseart.align import AlignmentError, align_states, register_views
 from sparseart.align_lightglue import LightGlueMatcher, LightGlueOptions
 from sparseart.lift.contract import ModelError
+from sparseart.metrics import axis_angle_error_deg
 from test_align import DOOR_MOTION, H, K, W, angle_deg, frame_of, look_at, render, room, two_states
 
 MODEL_H, MODEL_W = H // 2, W // 2   # the stand-in runs at half resolution
@@ -182,7 +183,7 @@ def test_pipeline_and_cli_use_the_matcher(flat_states, tmp_path, capsys):
     assert result.frame_kind == "camera"
     (_, joint), = result.joints
     axis_true = c2w_s[:3, :3].T @ np.array([0.0, 1.0, 0.0])     # hinge axis in the start camera frame
-    assert joint.type == "revolute" and angle_deg_between(joint.axis, axis_true) < 2.0
+    assert joint.type == "revolute" and axis_angle_error_deg(joint.axis, axis_true) < 2.0
     assert abs(np.degrees(abs(joint.angle)) - 30.0) < 2.0
     without = run(scene)
     assert any("feature alignment of the states failed" in w for w in without.warnings)
@@ -191,8 +192,3 @@ def test_pipeline_and_cli_use_the_matcher(flat_states, tmp_path, capsys):
     assert json.loads((out / "articulation.json").read_text())["joints"]
     assert cli.main(["run", str(scene), "--matcher-min-score", "0.5", "--out", str(out)]) != 0
     assert "--matcher-min-score needs --matcher" in capsys.readouterr().err
-
-
-def angle_deg_between(a, b) -> float:
-    a, b = np.asarray(a, float), np.asarray(b, float)
-    return float(np.degrees(np.arccos(np.clip(abs(a @ b) / np.linalg.norm(a) / np.linalg.norm(b), -1, 1))))

@@ -7,7 +7,7 @@ import pytest
 from sparseart import metrics, run_clouds
 from sparseart.labelers import MockLabeler, RuleBasedLabeler
 
-from synthetic import make_clouds
+from synthetic import box_surface, make_clouds
 
 CASES = [("revolute", np.radians(40)), ("revolute", np.radians(-25)), ("prismatic", 0.25)]
 
@@ -83,14 +83,6 @@ def _wire_rack(rng: np.random.Generator) -> np.ndarray:
     return np.vstack(pieces)
 
 
-def _box_surface(rng: np.random.Generator, half: np.ndarray, count: int = 4000) -> np.ndarray:
-    points = rng.uniform(-1, 1, (count, 3)) * half
-    face = rng.integers(0, 3, count)
-    rows = np.arange(count)
-    points[rows, face] = np.sign(points[rows, face]) * half[face]
-    return points
-
-
 @pytest.mark.parametrize("seed", [0, 1])
 def test_repeated_structure_slide_refit_from_static_axes(seed) -> None:
     """A rack slid 0.25 along x, seeded one wire sideways (the aliased local minimum a labeler can
@@ -100,7 +92,7 @@ def test_repeated_structure_slide_refit_from_static_axes(seed) -> None:
 
     rng = np.random.default_rng(seed)
     start, end = _wire_rack(rng), _wire_rack(rng) + [0.25, 0.0, 0.0]
-    static = _box_surface(rng, np.array([0.5, 0.3, 0.25]))
+    static = box_surface([1.0, 0.6, 0.5], [0.0, 0.0, 0.0], 4000, rng)[0]
     aliased = np.eye(4)
     aliased[:3, 3] = [0.25, 0.05, 0.0]
     colours = (np.full((len(start), 3), 0.5), np.full((len(end), 3), 0.5))
@@ -120,7 +112,7 @@ def test_static_axis_seeds_point_along_the_slide() -> None:
     from sparseart.types import JointEstimate
 
     rng = np.random.default_rng(0)
-    static = _box_surface(rng, np.array([0.5, 0.3, 0.2]))
+    static = box_surface([1.0, 0.6, 0.4], [0.0, 0.0, 0.0], 4000, rng)[0]
     axis = np.array([-np.cos(0.3), np.sin(0.3), 0.0])
     joint = JointEstimate(type="prismatic", axis=axis, origin=np.zeros(3), angle=None, distance=0.2,
                           transform=np.eye(4), uncertainty={}, residual=0.01, confidence=1.0)

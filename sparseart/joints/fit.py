@@ -25,7 +25,7 @@ both sets and divided by their RMS radius; results converted back at the end):
    Why: on rendered objects the errors are dominated by systematic effects (partial views, label
    errors, correspondence bias) that a residual-based sigma cannot see; the Jacobian sigma alone
    covered 39 % / 50 % / 72 % of the axis errors at 1 / 2 / 3 sigma on the 16 PartNet objects,
-   the stated sigma covers 72 % / 89 % / 89 % (benchmarks/results/uncertainty_calibration.txt);
+   the stated sigma covers 75 % / 90 % / 90 % (benchmarks/results/uncertainty_calibration_v2.txt);
 9. reliability warnings with the module constants below (shared with ``sparseart.stability``).
 """
 from __future__ import annotations
