@@ -1,4 +1,4 @@
-"""Quality and speed of the unposed alignment (sparseart.align) on rendered PartNet-Mobility scenes.
+"""Quality and speed of the unposed alignment (sparseart.align.ransac) on rendered PartNet-Mobility scenes.
 
 Renders every object in ../shared/data/partnet unposed (``--width`` x 3/4, ``--views`` per state,
 seed ``--seed``, fresh end cameras so the end-to-start transform is not the identity), lifts every
@@ -27,10 +27,10 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from sparseart.align import AlignmentError, align_states, register_views, transform_pointmap  # noqa: E402
+from sparseart.align.ransac import AlignmentError, align_states, register_views, transform_pointmap  # noqa: E402
 from sparseart.datasets.partnet import render_partnet_scene  # noqa: E402
 from sparseart.lift.rgbd import pointmap_from_depth  # noqa: E402
-from sparseart.scene import load_scene  # noqa: E402
+from sparseart.io.scene import load_scene  # noqa: E402
 
 PARTNET = REPO.parent / "shared" / "data" / "partnet"
 
@@ -109,7 +109,7 @@ def fmt(value, spec: str, missing: str = "-") -> str:
 
 
 def table(rows: list[dict], args) -> str:
-    lines = [f"sparseart.align on unposed PartNet renders: {args.width}x{args.width * 3 // 4}, {args.views} views per "
+    lines = [f"sparseart.align.ransac on unposed PartNet renders: {args.width}x{args.width * 3 // 4}, {args.views} views per "
              f"state, seed {args.seed}, fresh end cameras; clean depth",
              "views: worst registered view of both states vs gt cameras (rot deg, trans % of bbox diagonal), "
              "ok = registered/total, geo = edges by the geometric fallback, loop = loop-closure warnings "

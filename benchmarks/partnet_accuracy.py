@@ -16,7 +16,7 @@ import time
 from datetime import date
 from pathlib import Path
 
-from sparseart.bench import BenchSetting, evaluate_object, format_table
+from sparseart.bench.objects import BenchSetting, evaluate_object, format_table
 
 PARTNET = Path(__file__).resolve().parents[2] / "shared" / "data" / "partnet"
 

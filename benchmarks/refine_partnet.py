@@ -4,7 +4,7 @@
 
 For each object: render a posed two-state scene (320x240, clean depth, masks), run the default
 pipeline (the seed joints), refine every movable joint with the default RefineOptions, and
-score with sparseart.evaluate. ``--perturb`` first degrades each seed (axis tilted 5 deg, pivot
+score with sparseart.bench.evaluate. ``--perturb`` first degrades each seed (axis tilted 5 deg, pivot
 moved 3 % of the object size, angle +5 deg or distance +10 %) to test recovery from a worse
 seed. Reports, per joint: axis / position / state error of the seed, of the refined candidate
 and of the accepted joint (the guard keeps the seed unless the refinement is better), whether it
@@ -31,7 +31,7 @@ DEFAULT_OBJECTS = ("door_9168", "drawer_26525", "laptop_rotate_10211", "microwav
 def _perturb(joint, diameter: float, rng: np.random.Generator):
     from scipy.spatial.transform import Rotation
 
-    from sparseart.joints.screw import transform_from_prismatic, transform_from_revolute
+    from sparseart.geometry.transforms import transform_from_prismatic, transform_from_revolute
 
     bad = copy.deepcopy(joint)
     tilt = rng.normal(size=3)
@@ -51,17 +51,17 @@ def _perturb(joint, diameter: float, rng: np.random.Generator):
 
 
 def _errors(result, scene, gt) -> list[dict]:
-    from sparseart.evaluate import evaluate
+    from sparseart.bench.evaluate import evaluate
 
     return evaluate(result, scene, gt)
 
 
 def bench_object(name: str, work: Path, views: int, holdout: int, perturb: bool) -> list[dict]:
     from sparseart.datasets.partnet import render_partnet_scene
-    from sparseart.evaluate import load_gt
+    from sparseart.bench.evaluate import load_gt
     from sparseart.pipeline import run
     from sparseart.refine.api import RefineOptions, refine_part
-    from sparseart.scene import load_scene
+    from sparseart.io.scene import load_scene
 
     scene_dir = work / name
     render_partnet_scene(PARTNET / name, scene_dir, views=views, seed=0)

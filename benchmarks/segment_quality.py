@@ -22,7 +22,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from sparseart.datasets.partnet import render_partnet_scene  # noqa: E402
-from sparseart.scene import load_scene, write_bytes_atomic  # noqa: E402
+from sparseart.io.scene import load_scene, write_bytes_atomic  # noqa: E402
 from sparseart.segment.base import segmentation_quality  # noqa: E402
 from sparseart.segment.rules import RuleSegmenter  # noqa: E402
 

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sparseart.bench import BenchSetting, render_cached
+from sparseart.bench.objects import BenchSetting, render_cached
 
 PARTNET = Path(__file__).resolve().parents[2] / "shared" / "data" / "partnet"
 FAILED_AXIS_DEG = 10.0
@@ -41,9 +41,9 @@ FAILED_AXIS_DEG = 10.0
 
 def joint_rows(object_dir: Path, scenes: Path, setting: BenchSetting) -> list[dict]:
     """One row per ground-truth joint of one object (matched or not)."""
-    from sparseart.evaluate import evaluate
+    from sparseart.bench.evaluate import evaluate
     from sparseart.pipeline import RunOptions, run
-    from sparseart.scene import load_scene
+    from sparseart.io.scene import load_scene
 
     scene_dir = scenes / f"{object_dir.name}_{setting.render_key()}"
     gt, _ = render_cached(object_dir, scene_dir, setting)

@@ -10,7 +10,7 @@ Python use (robot code)::
 Heavy dependencies (open3d, onnxruntime, torch) are imported only by the stages that use them.
 """
 from .pipeline import RunOptions, run, run_clouds
-from .scene import load_scene
+from sparseart.io.scene import load_scene
 from .types import (Articulation, Camera, Frame, JointEstimate, LabelledCloud, PartLabels, PartResult,
                     PartSpec, Scene, SceneError)
 

@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
-    from .export import articulation_to_dict, summary_lines, write_articulation
+    from sparseart.io.articulation import articulation_to_dict, summary_lines, write_articulation
     from .pipeline import RunOptions, run
 
     if args.out.exists() and not args.out.is_dir():
@@ -149,7 +149,7 @@ def _matcher_settings(args: argparse.Namespace):
         if args.matcher_min_score is not None:
             raise SceneError("--matcher-min-score needs --matcher")
         return None
-    from .align_lightglue import DEFAULT_MIN_SCORE, LightGlueOptions
+    from sparseart.align.lightglue import DEFAULT_MIN_SCORE, LightGlueOptions
 
     score = DEFAULT_MIN_SCORE if args.matcher_min_score is None else args.matcher_min_score
     if not 0.0 <= score <= 1.0:
@@ -198,15 +198,15 @@ def _write_extras(result, args: argparse.Namespace) -> list[Path]:
     """The --urdf / --ply / --report files beside articulation.json (each written atomically)."""
     written: list[Path] = []
     if getattr(args, "urdf", False):
-        from .urdf_export import write_urdf
+        from sparseart.io.urdf import write_urdf
 
         written.append(write_urdf(result, args.out, name="object"))
     if getattr(args, "ply", False):
-        from .ply_export import write_labelled_clouds
+        from sparseart.io.ply import write_labelled_clouds
 
         written.extend(write_labelled_clouds(result, args.out))
     if getattr(args, "report", False):
-        from .viz import write_report
+        from sparseart.io.report import write_report
 
         written.append(write_report(result, args.out / "report.png"))
     return written
@@ -216,11 +216,11 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.out.exists() and not args.out.is_dir():
         raise SceneError(f"{args.out}: --out exists and is not a folder")
     if args.stability:
-        from .stability import run_stability
+        from sparseart.bench.stability import run_stability
 
         print(run_stability(args.out, quick=args.quick))
         return 0
-    from .bench_grid import QUICK_OBJECTS, find_objects, report_text, run_bench
+    from sparseart.bench.grid import QUICK_OBJECTS, find_objects, report_text, run_bench
 
     objects = find_objects(args.objects)
     if args.quick:
@@ -279,10 +279,10 @@ def _cmd_render(args: argparse.Namespace) -> int:
 
 def _cmd_demo(args: argparse.Namespace) -> int:
     from .datasets.synth import render_synth_scene
-    from .evaluate import evaluate
-    from .export import summary_lines, write_articulation
+    from sparseart.bench.evaluate import evaluate
+    from sparseart.io.articulation import summary_lines, write_articulation
     from .pipeline import run
-    from .scene import load_scene
+    from sparseart.io.scene import load_scene
 
     with tempfile.TemporaryDirectory(prefix="sparseart-demo-") as temp:
         base = args.keep or Path(temp)

@@ -14,7 +14,7 @@ from typing import Iterator
 import numpy as np
 
 from .labelers.base import PartLabeler
-from .metrics import axis_angle_error_deg
+from sparseart.bench.metrics import axis_angle_error_deg
 from .lift.labels import build_labelled_cloud
 from .lift.rgbd import pointmap_from_depth
 from .types import (JOINT_TYPES, Articulation, JointEstimate, LabelledCloud, PartLabels, PartResult,
@@ -41,8 +41,8 @@ class RunOptions:
     model: an ONNX reconstructor (.onnx) for RGB-only scenes (see models/README.md);
         onnx_options: its :class:`~sparseart.lift.onnx_model.OnnxLiftOptions`.
     matcher: an ONNX LightGlue pipeline export (.onnx) matching the images of unposed scenes
-        instead of SIFT (see :mod:`sparseart.align_lightglue`); matcher_options: its
-        :class:`~sparseart.align_lightglue.LightGlueOptions`.
+        instead of SIFT (see :mod:`sparseart.align.lightglue`); matcher_options: its
+        :class:`~sparseart.align.lightglue.LightGlueOptions`.
     seed: random seed for every sub-sampling step (results are deterministic for a seed).
     refine: run the SPLART refinement (needs torch and the scene's images); refine_options: its
         :class:`~sparseart.refine.RefineOptions`.
@@ -55,7 +55,7 @@ class RunOptions:
     model: str | Path | None = None
     onnx_options: object | None = None  # sparseart.lift.onnx_model.OnnxLiftOptions; None = its defaults
     matcher: str | Path | None = None
-    matcher_options: object | None = None  # sparseart.align_lightglue.LightGlueOptions; None = defaults
+    matcher_options: object | None = None  # sparseart.align.lightglue.LightGlueOptions; None = defaults
     seed: int = 0
     refine: bool = False
     refine_options: object | None = None  # sparseart.refine.RefineOptions (torch); None = its defaults
@@ -102,7 +102,7 @@ def run(scene: Scene | str | Path, labeler: PartLabeler | None = None,
     options = _options(options, overrides)
     clock = StageClock()
     if not isinstance(scene, Scene):
-        from .scene import load_scene
+        from sparseart.io.scene import load_scene
 
         with clock.stage("read", "scene folder"):
             scene = load_scene(scene, require_depth=options.model is None)
@@ -269,8 +269,8 @@ def _polish_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabe
     """Refine a feature/model alignment: robust ICP of the end static points onto the start static
     points from identity; the end cloud moves by the result (per-point labels are unchanged).
     O(I N log N) for I ICP iterations over N static points."""
-    from .joints.register import register_rigid
-    from .joints.screw import rotation_angle
+    from sparseart.geometry.icp import register_rigid
+    from sparseart.geometry.transforms import rotation_angle
 
     start_static = start.points[labels.start_part == 0]
     end_static = end.points[labels.end_part == 0]
@@ -300,7 +300,7 @@ def _align_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabel
     The labeler's static start->end motion (identity for a still camera) seeds a robust ICP of the
     end static points onto the start static points; the end cloud is moved by its inverse.
     """
-    from .joints.register import register_rigid
+    from sparseart.geometry.icp import register_rigid
 
     start_static = start.points[labels.start_part == 0]
     end_static = end.points[labels.end_part == 0]

@@ -1,4 +1,4 @@
-"""Tests of sparseart.align: Umeyama, RANSAC, SIFT matching, view registration, state alignment.
+"""Tests of sparseart.align.ransac: Umeyama, RANSAC, SIFT matching, view registration, state alignment.
 
 Synthetic scenes are textured rectangles ray-cast in numpy (exact depth, known poses and
 motions); one PartNet object is rendered (module fixture) for the view registration on real data.
@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from sparseart.align import (AlignmentError, Similarity, align_states, match_features, ransac_similarity,
+from sparseart.align.ransac import (AlignmentError, Similarity, align_states, match_features, ransac_similarity,
                              register_views, transform_pointmap, umeyama)
 from sparseart.lift.rgbd import pointmap_from_depth
 from sparseart.types import Camera, Frame, SceneError
@@ -291,7 +291,7 @@ def partnet_scene(tmp_path_factory):
     if not (obj / "mobility.urdf").is_file():
         pytest.skip(f"PartNet-Mobility objects not found at {PARTNET}")
     from sparseart.datasets.partnet import render_partnet_scene
-    from sparseart.scene import load_scene
+    from sparseart.io.scene import load_scene
 
     root = tmp_path_factory.mktemp("align") / "storage"
     render_partnet_scene(obj, root, views=3, seed=0, posed=False, same_cameras=False)

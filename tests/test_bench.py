@@ -7,13 +7,13 @@ import math
 import numpy as np
 import pytest
 
-from sparseart.baselines.icp_peer import PeerOptions, icp_peer, joint_from_transform, register_part_icp
-from sparseart.bench import BenchSetting, evaluate_object
-from sparseart.bench_grid import grid_settings, pareto_front, ratio_note, run_bench
+from sparseart.bench.icp_peer import PeerOptions, icp_peer, joint_from_transform, register_part_icp
+from sparseart.bench.objects import BenchSetting, evaluate_object
+from sparseart.bench.grid import grid_settings, pareto_front, ratio_note, run_bench
 from sparseart.datasets.scene_writer import add_flying_pixels, perturb_pose
-from sparseart.joints.screw import transform_from_prismatic, transform_from_revolute
-from sparseart.metrics import axis_angle_error_deg, axis_position_error
-from sparseart.stability import DOOR_AXIS, DOOR_ORIGIN, cases, format_report, observe, run_case
+from sparseart.geometry.transforms import transform_from_prismatic, transform_from_revolute
+from sparseart.bench.metrics import axis_angle_error_deg, axis_position_error
+from sparseart.bench.stability import DOOR_AXIS, DOOR_ORIGIN, cases, format_report, observe, run_case
 from sparseart.types import LabelledCloud
 
 from conftest import PARTNET_DIR, requires_partnet

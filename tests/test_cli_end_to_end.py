@@ -9,9 +9,9 @@ import pytest
 
 from sparseart.cli import main
 from sparseart.datasets.synth import render_synth_scene
-from sparseart.evaluate import evaluate, load_gt
+from sparseart.bench.evaluate import evaluate, load_gt
 from sparseart.pipeline import run
-from sparseart.scene import load_scene
+from sparseart.io.scene import load_scene
 
 from conftest import PARTNET_DIR, requires_partnet
 

@@ -5,12 +5,12 @@ import cv2
 import numpy as np
 import pytest
 
-from sparseart.joints.screw import apply_transform, transform_from_prismatic, transform_from_revolute
-from sparseart.ply_export import part_colour, write_labelled_clouds
+from sparseart.geometry.transforms import apply_transform, transform_from_prismatic, transform_from_revolute
+from sparseart.io.ply import part_colour, write_labelled_clouds
 from sparseart.types import (Articulation, JointEstimate, LabelledCloud, PartLabels, PartResult, PartSpec,
                              StageRecord)
-from sparseart.urdf_export import write_urdf
-from sparseart.viz import write_report
+from sparseart.io.urdf import write_urdf
+from sparseart.io.report import write_report
 
 HINGE_AXIS = np.array([0.0, 0.0, 1.0])
 HINGE_ORIGIN = np.array([0.3, -0.2, 0.4])

@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from lightglue_builders import build_lightglue, build_split_extractor
-from sparseart.align import AlignmentError, align_states, register_views
-from sparseart.align_lightglue import LightGlueMatcher, LightGlueOptions
+from sparseart.align.ransac import AlignmentError, align_states, register_views
+from sparseart.align.lightglue import LightGlueMatcher, LightGlueOptions
 from sparseart.lift.contract import ModelError
-from sparseart.metrics import axis_angle_error_deg
+from sparseart.bench.metrics import axis_angle_error_deg
 from test_align import DOOR_MOTION, H, K, W, angle_deg, frame_of, look_at, render, room, two_states
 
 MODEL_H, MODEL_W = H // 2, W // 2   # the stand-in runs at half resolution

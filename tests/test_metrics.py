@@ -1,4 +1,4 @@
-"""Hand-computed cases for sparseart.metrics (design section 4)."""
+"""Hand-computed cases for sparseart.bench.metrics (design section 4)."""
 from __future__ import annotations
 
 import math
@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from sparseart.metrics import (
+from sparseart.bench.metrics import (
     axis_angle_error_deg,
     axis_position_error,
     chamfer_cost_matrix,

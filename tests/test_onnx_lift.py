@@ -23,7 +23,7 @@ from sparseart.lift.contract import ModelError, parse_contract
 from sparseart.lift.onnx_model import (OnnxLiftOptions, Reconstructor, confidence_to_unit,
                                        decode_vggt_pose_encoding, lift_scene_with_model)
 from sparseart.lift.preprocess import SizeRule, plan_mapping
-from sparseart.scene import load_scene
+from sparseart.io.scene import load_scene
 from sparseart.types import SceneError
 
 POINT_TOL = 1e-5  # metres: float32 depth, pose and field of view against the float64 RGB-D path

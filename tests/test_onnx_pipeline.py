@@ -23,8 +23,8 @@ from sparseart import pipeline  # noqa: E402
 from sparseart.cli import main  # noqa: E402
 from sparseart.datasets import partnet  # noqa: E402
 from sparseart.datasets.synth import render_synth_scene  # noqa: E402
-from sparseart.metrics import axis_angle_error_deg  # noqa: E402
-from sparseart.scene import load_scene  # noqa: E402
+from sparseart.bench.metrics import axis_angle_error_deg  # noqa: E402
+from sparseart.io.scene import load_scene  # noqa: E402
 from sparseart.types import SceneError  # noqa: E402
 
 AXIS_TOLERANCE_DEG = 1.5

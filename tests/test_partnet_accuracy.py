@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from sparseart.bench import BenchSetting, evaluate_object, format_table
+from sparseart.bench.objects import BenchSetting, evaluate_object, format_table
 
 from conftest import PARTNET_DIR, requires_partnet
 

@@ -4,7 +4,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sparseart import metrics, run_clouds
+from sparseart import run_clouds
+
+from sparseart.bench import metrics
 from sparseart.labelers import MockLabeler, RuleBasedLabeler
 
 from synthetic import box_surface, make_clouds

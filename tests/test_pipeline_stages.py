@@ -10,9 +10,9 @@ import pytest
 from fake_vlm_server import FakeVlmServer
 from sparseart.cli import main
 from sparseart.datasets.synth import render_synth_scene
-from sparseart.evaluate import evaluate
+from sparseart.bench.evaluate import evaluate
 from sparseart.pipeline import run
-from sparseart.scene import load_scene
+from sparseart.io.scene import load_scene
 from sparseart.types import SceneError
 
 

@@ -6,7 +6,7 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from sparseart.joints.screw import transform_from_prismatic, transform_from_revolute  # noqa: E402
+from sparseart.geometry.transforms import transform_from_prismatic, transform_from_revolute  # noqa: E402
 from sparseart.refine.compose import components, novel_state_components  # noqa: E402
 from sparseart.refine.gaussians import gaussians_from_points, initial_mobility  # noqa: E402
 from sparseart.refine.joint import JointParams, matrix_to_quaternion, move_gaussians  # noqa: E402

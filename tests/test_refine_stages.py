@@ -20,7 +20,7 @@ TINY = dict(long_side=48, max_gaussians=400, per_state_iters=3, static_chamfer_i
 def small_run(tmp_path_factory):
     from sparseart.datasets.partnet import render_partnet_scene
     from sparseart.pipeline import run
-    from sparseart.scene import load_scene
+    from sparseart.io.scene import load_scene
 
     root = tmp_path_factory.mktemp("refine") / "scene"
     render_partnet_scene(PARTNET_DIR / OBJECT, root, views=2, seed=0, width=128, height=96)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sparseart.cli import main
-from sparseart.scene import load_scene, write_json_atomic
+from sparseart.io.scene import load_scene, write_json_atomic
 from sparseart.types import SceneError
 
 from conftest import write_tiny_scene

@@ -11,7 +11,7 @@ from conftest import PARTNET_DIR, TINY_K, requires_partnet
 from sam_builders import build_decoder, build_encoder
 from sparseart.lift.labels import build_labelled_cloud
 from sparseart.lift.rgbd import pointmap_from_depth
-from sparseart.scene import load_scene
+from sparseart.io.scene import load_scene
 from sparseart.segment import make_segmenter, segment_scene, segmentation_quality
 from sparseart.segment.onnx_sam import SamSegmenter, box_nms, paint_masks, stability_scores
 from sparseart.segment.rules import RuleOptions, RuleSegmenter, depth_jumps, segment_image

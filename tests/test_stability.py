@@ -170,7 +170,7 @@ def test_bad_inputs_raise():
 def test_outlier_warning_seventy_five_percent():
     """75 % uniform outliers: the fit may fail, but it must say so (same rule as the stability report)."""
     from sparseart.joints.fit import MAX_SCATTER_FRACTION
-    from sparseart.stability import cases, run_case
+    from sparseart.bench.stability import cases, run_case
 
     case = next(c for c in cases() if c.sweep == "outliers" and c.value == 75.0)
     row = run_case(case, count=800)
@@ -181,7 +181,7 @@ def test_outlier_warning_seventy_five_percent():
 def test_far_pivot_twenty_part_sizes_warns():
     """Pivot 20x the part size, 10 deg, 800 points: whichever type wins (it was silently
     prismatic and 90 deg off), the revolute/prismatic ambiguity is stated."""
-    from sparseart.stability import cases, run_case
+    from sparseart.bench.stability import cases, run_case
 
     case = next(c for c in cases() if c.sweep == "pivot" and c.value == 20.0)
     row = run_case(case, count=800)

@@ -17,13 +17,13 @@ import cv2
 import numpy as np
 import pytest
 
-from sparseart.evaluate import evaluate, true_groups
+from sparseart.bench.evaluate import evaluate, true_groups
 from sparseart.labelers import MockLabeler
 from sparseart.labelers.overlay import id_color, numbered_overlay, png_data_url
 from sparseart.labelers.vlm import VlmLabeler, VlmLabelerConfig, _check_labelling, _check_types
 from sparseart.labelers.vlm_client import (VlmAnswerError, VlmClient, VlmServiceError, extract_json,
                                            validate_json)
-from sparseart.scene import load_scene
+from sparseart.io.scene import load_scene
 
 from fake_vlm_server import FakeVlmServer
 
@@ -306,7 +306,7 @@ def test_correct_answers_give_ground_truth_parts(fake, cabinet, clouds):
 
 
 def test_pipeline_with_vlm_gives_correct_joints(fake, cabinet, tmp_path):
-    from sparseart.export import write_articulation
+    from sparseart.io.articulation import write_articulation
     from sparseart.pipeline import run
 
     scene, gt = cabinet
@@ -380,7 +380,7 @@ def test_default_fallback_is_rule_based(fake, cabinet, clouds):
 
 def test_api_key_never_leaks(fake, cabinet, clouds, caplog):
     """Every error path with a distinctive key: the key is in no exception, warning, log or output."""
-    from sparseart.export import articulation_to_dict
+    from sparseart.io.articulation import articulation_to_dict
     from sparseart.pipeline import run_clouds
 
     from sparseart.labelers.vlm import PROMPTS_DIR

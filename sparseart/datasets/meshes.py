@@ -67,7 +67,7 @@ class RenderMesh:
 
     def to_o3d(self):
         """An open3d legacy TriangleMesh with vertex colours averaged from the triangle colours."""
-        from .._open3d import open3d
+        from sparseart.geometry.o3d import open3d
         o3d = open3d()
 
         m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(self.vertices),

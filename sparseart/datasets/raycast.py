@@ -27,7 +27,7 @@ class PreparedScene:
     """
 
     def __init__(self, parts: Sequence[tuple[RenderMesh, int]]):
-        from .._open3d import open3d
+        from sparseart.geometry.o3d import open3d
         o3d = open3d()
 
         meshes, labels = [], []
@@ -55,7 +55,7 @@ class PreparedScene:
 
         Returns (t (N,) float64 in units of the direction length, inf = miss; tri (N,) int64, -1 = miss).
         """
-        from .._open3d import open3d
+        from sparseart.geometry.o3d import open3d
         o3d = open3d()
 
         n = len(origins)

@@ -20,7 +20,7 @@ SHELF_Z = 0.32  # top of the drawer compartment
 def box_mesh(lo: tuple[float, float, float], hi: tuple[float, float, float],
              color: tuple[float, float, float]) -> RenderMesh:
     """Axis-aligned box from corner ``lo`` to ``hi`` (metres) with one RGB colour in [0, 1]."""
-    from .._open3d import open3d
+    from sparseart.geometry.o3d import open3d
     o3d = open3d()
 
     lo_a, hi_a = np.asarray(lo, float), np.asarray(hi, float)

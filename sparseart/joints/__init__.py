@@ -8,8 +8,8 @@ Public entry points::
 """
 from sparseart.joints.clean import clean_part_points
 from sparseart.joints.fit import FitConfig, fit_joint
-from sparseart.joints.register import RigidRegistration, register_rigid
-from sparseart.joints.screw import (Screw, kabsch, robust_kabsch, screw_from_transform, transform_from_prismatic,
+from sparseart.geometry.icp import RigidRegistration, register_rigid
+from sparseart.geometry.transforms import (Screw, kabsch, robust_kabsch, screw_from_transform, transform_from_prismatic,
                                     transform_from_revolute)
 from sparseart.joints.select import bic, select_joint_type
 

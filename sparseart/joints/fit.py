@@ -26,7 +26,7 @@ both sets and divided by their RMS radius; results converted back at the end):
    errors, correspondence bias) that a residual-based sigma cannot see; the Jacobian sigma alone
    covered 39 % / 50 % / 72 % of the axis errors at 1 / 2 / 3 sigma on the 16 PartNet objects,
    the stated sigma covers 75 % / 90 % / 90 % (benchmarks/results/uncertainty_calibration_v2.txt);
-9. reliability warnings with the module constants below (shared with ``sparseart.stability``).
+9. reliability warnings with the module constants below (shared with ``sparseart.bench.stability``).
 """
 from __future__ import annotations
 
@@ -40,13 +40,13 @@ from scipy.spatial.distance import cdist
 from scipy.spatial.transform import Rotation
 
 from sparseart.joints.clean import clean_part_points, estimate_normals
-from sparseart.joints.register import register_rigid
-from sparseart.joints.screw import (apply_transform, make_transform, perturb_axis, screw_from_transform,
+from sparseart.geometry.icp import register_rigid
+from sparseart.geometry.transforms import (apply_transform, make_transform, perturb_axis, screw_from_transform,
                                     tangent_basis, transform_from_prismatic, transform_from_revolute, unit)
 from sparseart.joints.select import select_joint_type
 from sparseart.joints.uncertainty import (block_jackknife_covariance, inlier_fraction, scatter_fraction,
                                           spatial_blocks)
-from sparseart.sampling import random_subset
+from sparseart.geometry.sampling import random_subset
 from sparseart.types import JointEstimate
 
 MIN_POINTS = 5

@@ -22,7 +22,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from ..sampling import random_subset
+from sparseart.geometry.sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 
 STATIC_ANGLE_DEG = 1.0          # a matched pair moving less than this and ...
@@ -212,7 +212,7 @@ def _match_groups(start: LabelledCloud, end: LabelledCloud, start_groups: list[_
     Returns the pairs (start group, end group, start->end transform (4, 4), score in [0, 1]) and
     the extras (state, group, partner group in the other state) for groups left over.
     """
-    from ..joints.register import register_rigid
+    from sparseart.geometry.icp import register_rigid
 
     rng = np.random.default_rng(config.seed + 1)
     start_samples = [_group_sample(g, config.max_points_per_segment, rng) for g in start_groups]
@@ -454,8 +454,8 @@ def _polish_motion(start: LabelledCloud, end: LabelledCloud, start_indices: np.n
     registration inlier fractions do not separate a symmetric part's turns reliably, so the joint
     fit decides (by residual, then by where a hinge can be).
     """
-    from ..joints.register import register_rigid
-    from ..joints.screw import rotation_angle
+    from sparseart.geometry.icp import register_rigid
+    from sparseart.geometry.transforms import rotation_angle
 
     source, target = start.points[start_indices], end.points[end_indices]
     colours = dict(source_colors=start.colors[start_indices], target_colors=end.colors[end_indices])

@@ -547,7 +547,7 @@ def lift_scene_with_model(scene: Scene, model_path: str | Path | Reconstructor,
     """Lift every frame of an (RGB-only) scene with an ONNX reconstructor.
 
     Args:
-        scene: a loaded scene (``sparseart.scene.load_scene(path, require_depth=False)``); only
+        scene: a loaded scene (``sparseart.io.scene.load_scene(path, require_depth=False)``); only
             the RGB images are used. cameras.json K, when given, is NOT used for geometry (the
             model's depth and cameras are consistent with its own K; mixing them would bend the
             surfaces); it is compared with the model's K and a warning is added when the focal

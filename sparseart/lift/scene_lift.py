@@ -5,13 +5,13 @@ Three routes, chosen by what the scene holds:
 * **posed RGB-D** (depth + cam_to_world for every image): every view unprojected into the world
   frame of cameras.json; the states are aligned by construction.
 * **unposed RGB-D** (depth + K, no cam_to_world): each view unprojected in its own camera frame;
-  the views of a state are registered to its first view (:func:`sparseart.align.register_views`,
+  the views of a state are registered to its first view (:func:`sparseart.align.ransac.register_views`,
   rigid, metric depth) and the end state is brought into the frame of ``start/rgb/000`` by
-  :func:`sparseart.align.align_states` (SIFT matches lifted to 3D, RANSAC + Umeyama).
+  :func:`sparseart.align.ransac.align_states` (SIFT matches lifted to 3D, RANSAC + Umeyama).
 * **RGB only** (``model`` given): an ONNX reconstructor lifts every image
   (:func:`sparseart.lift.onnx_model.lift_scene_with_model`). In "joint" mode both states come out
   in the frame of the first start camera; in "per_state" mode each state has its own frame and
-  scale, and :func:`~sparseart.align.align_states` fits a similarity between them.
+  scale, and :func:`~sparseart.align.ransac.align_states` fits a similarity between them.
 
 The result says how the states were brought together (``alignment``): "cameras" (posed),
 "features" (feature alignment, to be polished on the static part after labelling), "model" (the
@@ -68,7 +68,7 @@ def lift_scene(scene: Scene, *, reject_flying_pixels: bool = True, model: str | 
         seed: random seed of the RANSAC steps.
         matcher: an ONNX LightGlue pipeline export used instead of SIFT to register views and align
             the states (opened only when the scene needs alignment); matcher_options: its
-            :class:`~sparseart.align_lightglue.LightGlueOptions`.
+            :class:`~sparseart.align.lightglue.LightGlueOptions`.
 
     Raises:
         SceneError (incl. ModelError, AlignmentError for a view that cannot be registered): one
@@ -96,8 +96,8 @@ def lift_scene(scene: Scene, *, reject_flying_pixels: bool = True, model: str | 
 
 
 def _open_matcher(matcher: str | Path, matcher_options):
-    """A :class:`~sparseart.align_lightglue.LightGlueMatcher` (ModelError for a bad model)."""
-    from ..align_lightglue import LightGlueMatcher
+    """A :class:`~sparseart.align.lightglue.LightGlueMatcher` (ModelError for a bad model)."""
+    from sparseart.align.lightglue import LightGlueMatcher
 
     return LightGlueMatcher(matcher, matcher_options)
 
@@ -121,7 +121,7 @@ def _camera_reference(scene: Scene) -> str:
 
 def _lift_unposed_rgbd(scene: Scene, reject_flying_pixels: bool, seed: int, matcher=None) -> LiftedScene:
     """Camera-frame unprojection, views registered within each state, then the states aligned."""
-    from ..align import AlignmentError, register_views, transform_pointmap
+    from sparseart.align.ransac import AlignmentError, register_views, transform_pointmap
 
     seconds: dict[str, float] = {}
     warnings: list[str] = []
@@ -151,7 +151,7 @@ def _align_states(scene: Scene, pointmaps: dict[str, list[Pointmap]], *, with_sc
                   seed: int, seconds: dict[str, float], warnings: list[str], matcher=None) -> LiftedScene:
     """End pointmaps (end view-0 frame) -> start view-0 frame by feature alignment; on failure
     (too few matches, degenerate) keep them as they are and say so (alignment "none")."""
-    from ..align import AlignmentError, align_states, transform_pointmap
+    from sparseart.align.ransac import AlignmentError, align_states, transform_pointmap
 
     frame = ("camera", _camera_reference(scene), units)
     began = time.perf_counter()

@@ -136,7 +136,7 @@ class PartRefinement:
 
 
 def _subsample(mask: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
-    from ..sampling import random_subset
+    from sparseart.geometry.sampling import random_subset
 
     index = np.flatnonzero(mask)
     return index[random_subset(len(index), count, rng)]
@@ -144,7 +144,7 @@ def _subsample(mask: np.ndarray, count: int, rng: np.random.Generator) -> np.nda
 
 def _trimmed_residual(a: np.ndarray, b: np.ndarray, transform: np.ndarray, keep: float = 0.8) -> float:
     """Trimmed RMS nearest-neighbour distance, both directions, of a moved by ``transform`` vs b."""
-    from ..joints.screw import apply_transform
+    from sparseart.geometry.transforms import apply_transform
 
     inverse = np.linalg.inv(transform)
     d1 = np.sort(stages._nearest_distance(apply_transform(transform, a), b))
@@ -154,7 +154,7 @@ def _trimmed_residual(a: np.ndarray, b: np.ndarray, transform: np.ndarray, keep:
 
 
 def _transform(values: dict) -> np.ndarray:
-    from ..joints.screw import transform_from_prismatic, transform_from_revolute
+    from sparseart.geometry.transforms import transform_from_prismatic, transform_from_revolute
 
     if values["type"] == "revolute":
         return transform_from_revolute(values["axis"], values["origin"], values["angle"])
@@ -269,7 +269,7 @@ def sigma_moves(before: dict, after: dict, uncertainty: dict[str, float]) -> dic
     Both dicts: type, axis (3,), origin (3,), angle (rad) | distance (scene units). Axes of
     opposite sign are compared as one line (the state's sign follows). Components without a
     positive sigma are left out. O(1)."""
-    from ..metrics import axis_angle_error_deg
+    from sparseart.bench.metrics import axis_angle_error_deg
 
     axis_b = np.asarray(before["axis"], np.float64)
     axis_a = np.asarray(after["axis"], np.float64)

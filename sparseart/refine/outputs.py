@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import write_bytes_atomic, write_json_atomic
+from sparseart.io.scene import write_bytes_atomic, write_json_atomic
 from ..types import Articulation
 from .compose import components, novel_state_components, render_components
 from .losses import psnr

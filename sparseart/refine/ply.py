@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import write_bytes_atomic
+from sparseart.io.scene import write_bytes_atomic
 from ..types import SceneError
 
 PROPERTIES = ("x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",

@@ -52,7 +52,7 @@ def recover_cam_to_world(frame_depth: np.ndarray, K: np.ndarray, cloud: Labelled
                          frame_index: int) -> np.ndarray | None:
     """(4, 4) camera -> scene transform of one frame from its points in ``cloud`` (Kabsch between
     the unprojected pixels and the cloud points); None with fewer than 3 points. O(N)."""
-    from ..joints.screw import kabsch, make_transform
+    from sparseart.geometry.transforms import kabsch, make_transform
     from ..lift.rgbd import pixel_rays
 
     here = cloud.frame_index == frame_index

@@ -1,6 +1,6 @@
 """Alignment of unposed scenes: views of one state into one frame, then end state into start frame.
 
-Features (:mod:`sparseart.align_features`) -> 3D matches through the pointmaps -> vectorised RANSAC
+Features (:mod:`sparseart.align.features`) -> 3D matches through the pointmaps -> vectorised RANSAC
 of a similarity (or rigid) transform -> least-squares (Umeyama) refit on the inliers. Views of one
 state are chained through the best-connected view and polished with point-to-plane ICP; between
 states the dominant transform is the static part and the outliers are searched for rigid motions
@@ -12,10 +12,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .align_features import (PLANAR_FRACTION, THRESHOLD_FRACTION, AlignmentError, FeatureMatches,
+from sparseart.align.features import (PLANAR_FRACTION, THRESHOLD_FRACTION, AlignmentError, FeatureMatches,
                              geometry_edge, icp_polish, match_features, match_view_features, scene_size,
                              spread, valid_points, view_features)
-from .types import Frame, Pointmap
+from sparseart.types import Frame, Pointmap
 
 __all__ = ["AlignmentError", "FeatureMatches", "MotionCandidate", "Similarity", "StateAlignment",
            "align_states", "match_features", "ransac_similarity", "register_views",
@@ -269,7 +269,7 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
     view 0 through the maximum spanning tree of the inlier counts (so a view that only overlaps
     view 1 is chained through it). When features leave a view unreached and the clouds are metric
     (``with_scale=False``) with K, pairs without a feature fit get a geometric registration
-    (:func:`~sparseart.align_features.geometry_edge`, with a warning naming the view; never for
+    (:func:`~sparseart.align.features.geometry_edge`, with a warning naming the view; never for
     planar clouds); feature edges always rank above geometric ones. Edges off the tree are checked against it (loop
     closure) and disagreements warned. With ``with_scale=False`` each view is then polished by
     point-to-plane ICP against the views already placed. O(V^2 (M^2 + 2000 K + N log N)).
@@ -279,7 +279,7 @@ def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale
         with_scale: per-view scale (relative-scale reconstructions); folded into the transforms.
         geometry_fallback: allow the geometric registration of pairs without feature matches.
         matcher: a pair matcher (``match(frame_a, pointmap_a, frame_b, pointmap_b) ->
-            FeatureMatches``, e.g. :class:`~sparseart.align_lightglue.LightGlueMatcher`) used
+            FeatureMatches``, e.g. :class:`~sparseart.align.lightglue.LightGlueMatcher`) used
             instead of SIFT; None = SIFT.
 
     Returns:

@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 
-from . import metrics
-from .sampling import random_subset
-from .types import Articulation, LabelledCloud, Scene
+from sparseart.bench import metrics
+from sparseart.geometry.sampling import random_subset
+from sparseart.types import Articulation, LabelledCloud, Scene
 
 CHAMFER_SAMPLE = 3000
 

@@ -2,7 +2,7 @@
 
 ``evaluate_object`` renders one object at two joint states (the same open3d renderer as
 ``sparseart render``; cached per rendering setting), runs the pipeline -- and optionally the ICP
-peer (``sparseart.baselines.icp_peer``) on the same clouds -- and scores every ground-truth joint
+peer (``sparseart.bench.icp_peer``) on the same clouds -- and scores every ground-truth joint
 (design section 4). The test suite, ``benchmarks/`` and ``sparseart bench`` (``bench_grid``) use it.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from . import metrics
+from sparseart.bench import metrics
 
 METHOD_SPARSEART = "sparseart"
 METHOD_PEER = "icp_peer"
@@ -56,7 +56,7 @@ class BenchSetting:
 
 def refine_available() -> bool:
     """True when ``sparseart.pipeline.RunOptions`` has a ``refine`` option (added by issue 5)."""
-    from .pipeline import RunOptions
+    from sparseart.pipeline import RunOptions
 
     return hasattr(RunOptions(), "refine")
 
@@ -64,8 +64,8 @@ def refine_available() -> bool:
 def render_cached(object_dir: str | Path, scene_dir: str | Path, setting: BenchSetting) -> tuple[dict, float]:
     """Render ``object_dir`` into ``scene_dir`` unless a complete render of the same setting is
     there (``gt.json`` + ``bench_render.json`` stamp). Returns (gt dict, render seconds; 0 when cached)."""
-    from .datasets.partnet import render_partnet_scene
-    from .scene import write_json_atomic
+    from sparseart.datasets.partnet import render_partnet_scene
+    from sparseart.io.scene import write_json_atomic
 
     scene_dir = Path(scene_dir)
     stamp_path = scene_dir / "bench_render.json"
@@ -97,9 +97,9 @@ def evaluate_object(object_dir: str | Path, work_dir: str | Path, setting: Bench
     The peer's ``pipeline_seconds`` = the shared stages it reuses (read, lift, align, label) plus
     its own registration, so both methods' totals cover the same work.
     """
-    from .evaluate import evaluate
-    from .pipeline import RunOptions, run
-    from .scene import load_scene
+    from sparseart.bench.evaluate import evaluate
+    from sparseart.pipeline import RunOptions, run
+    from sparseart.io.scene import load_scene
 
     setting = setting or BenchSetting()
     object_dir = Path(object_dir)
@@ -117,7 +117,7 @@ def evaluate_object(object_dir: str | Path, work_dir: str | Path, setting: Bench
     pipeline_seconds = time.perf_counter() - began
     outcomes = [(METHOD_SPARSEART, result, pipeline_seconds)]
     if peer:
-        from .baselines.icp_peer import icp_peer_from_result
+        from sparseart.bench.icp_peer import icp_peer_from_result
 
         peer_result = icp_peer_from_result(result, peer_options)
         outcomes.append((METHOD_PEER, peer_result, max(read_seconds, 0.0) + sum(s.seconds for s in peer_result.stages)))

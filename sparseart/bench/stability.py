@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from .joints.fit import (ILL_CONDITIONED, MAX_AXIS_SIGMA_DEG, MAX_RELATIVE_SIGMA, MAX_SCATTER_FRACTION,
+from sparseart.joints.fit import (ILL_CONDITIONED, MAX_AXIS_SIGMA_DEG, MAX_RELATIVE_SIGMA, MAX_SCATTER_FRACTION,
                          MIN_INLIER_FRACTION, FitConfig)
-from .metrics import SUCCESS_AXIS_DEG, joint_errors
-from .scene import write_bytes_atomic, write_json_atomic
+from sparseart.bench.metrics import SUCCESS_AXIS_DEG, joint_errors
+from sparseart.io.scene import write_bytes_atomic, write_json_atomic
 
 UNRELIABLE_WORDS = ("poorly defined", "ambiguous", "ill-conditioned", "cleaning removed", "fragile",
                     "collinear", "not a pure rotation", "unreliable", "uncertainty large")
@@ -125,7 +125,7 @@ def cases(quick: bool = False) -> list[Case]:
 
 def run_case(case: Case, count: int = 2000, seed: int = 0) -> dict[str, Any]:
     """Fit one case; errors are in part units (divided by ``case.scale``) so sweeps compare."""
-    from .joints import fit_joint, transform_from_revolute
+    from sparseart.joints import fit_joint, transform_from_revolute
 
     transform = transform_from_revolute(case.axis, case.origin, case.amount)
     start, end = observe(case.shape, transform, count, case.noise, seed, case.partial)

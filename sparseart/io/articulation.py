@@ -7,8 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from .scene import write_json_atomic
-from .types import Articulation, JointEstimate
+from sparseart.io.scene import write_json_atomic
+from sparseart.types import Articulation, JointEstimate
 
 SCHEMA = "sparseart/articulation/1"
 

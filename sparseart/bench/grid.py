@@ -23,9 +23,9 @@ from datetime import date
 from pathlib import Path
 from typing import Any, TextIO
 
-from . import metrics
-from .bench import METHOD_PEER, METHOD_SPARSEART, BenchSetting, evaluate_object, refine_available
-from .scene import write_bytes_atomic, write_json_atomic
+from sparseart.bench import metrics
+from sparseart.bench.objects import METHOD_PEER, METHOD_SPARSEART, BenchSetting, evaluate_object, refine_available
+from sparseart.io.scene import write_bytes_atomic, write_json_atomic
 
 QUICK_OBJECTS = ("toaster_press_103486", "stapler_press_102990", "door_9168")
 FLYING_FRACTION = 0.5  # fraction of depth-edge pixels made flying in the noisy-depth settings
@@ -37,7 +37,7 @@ STAGES = ("read", "segment", "lift", "lift.register_views", "lift.align_states",
 
 def default_partnet_dir() -> Path:
     """``../shared/data/partnet`` next to the repository (the shared objects)."""
-    return Path(__file__).resolve().parents[2] / "shared" / "data" / "partnet"
+    return Path(__file__).resolve().parents[3] / "shared" / "data" / "partnet"
 
 
 def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting], list[str]]:
@@ -278,7 +278,7 @@ def write_outputs(result: BenchResult, out_dir: Path, plots: bool = True) -> lis
                                                  "skipped": result.skipped, "failures": result.failures})
     written += [out_dir / "rows.json", out_dir / "summary.json"]
     if plots and result.summary:
-        from .bench_plots import plot_error_vs_factor, plot_error_vs_time
+        from sparseart.bench.plots import plot_error_vs_factor, plot_error_vs_time
 
         written.append(plot_error_vs_time(result.summary, out_dir / "error_vs_time.png"))
         written.append(plot_error_vs_factor(result.summary, out_dir / "error_vs_factor.png"))
@@ -288,7 +288,7 @@ def write_outputs(result: BenchResult, out_dir: Path, plots: bool = True) -> lis
 def find_objects(dirs: list[Path] | None) -> list[Path]:
     """Object folders: each given folder that holds ``mobility.urdf``, or its sub-folders that do;
     default every object in the shared PartNet folder. SceneError-style ValueError when none."""
-    from .types import SceneError
+    from sparseart.types import SceneError
 
     roots = dirs or [default_partnet_dir()]
     found = []

@@ -9,7 +9,7 @@ Registration per part (open3d 0.20):
    and the identity, each refined by point-to-plane ICP with a Tukey robust kernel
    (``TransformationEstimationPointToPlane(TukeyLoss(k))``, k = 2 voxels); the refined transform
    with the higher fitness (then lower RMSE) wins;
-3. the start->end transform is decomposed by ``sparseart.joints.screw.screw_from_transform``; the
+3. the start->end transform is decomposed by ``sparseart.geometry.transforms.screw_from_transform``; the
    type follows ArtGS's ``cal_art_type`` rule: rotation above ``revolute_min_deg`` (10 deg) ->
    revolute (axis, pivot, angle), else prismatic (translation direction and length).
 
@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..joints.screw import screw_from_transform, transform_from_prismatic, transform_from_revolute
-from ..types import Articulation, JointEstimate, LabelledCloud, PartLabels, PartResult, PartSpec, StageRecord
+from sparseart.geometry.transforms import screw_from_transform, transform_from_prismatic, transform_from_revolute
+from sparseart.types import Articulation, JointEstimate, LabelledCloud, PartLabels, PartResult, PartSpec, StageRecord
 
 MIN_PART_POINTS = 20
 
@@ -66,7 +66,7 @@ class PeerOptions:
 
 
 def _cloud(points: np.ndarray, voxel: float):
-    from .._open3d import open3d
+    from sparseart.geometry.o3d import open3d
 
     o3d = open3d()
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
@@ -84,7 +84,7 @@ def register_part_icp(start_points: np.ndarray, end_points: np.ndarray,
     Cost: O((N + M) log(N + M)) for down-sampling, normals and FPFH, plus the RANSAC budget.
     Raises ValueError for too few points.
     """
-    from .._open3d import open3d
+    from sparseart.geometry.o3d import open3d
 
     o3d = open3d()
     reg = o3d.pipelines.registration
@@ -159,7 +159,7 @@ def motion_labels(start: LabelledCloud, end: LabelledCloud, options: PeerOptions
     from scipy.optimize import linear_sum_assignment
     from scipy.spatial import cKDTree
 
-    from .._open3d import open3d
+    from sparseart.geometry.o3d import open3d
 
     o3d = open3d()
     both = np.concatenate([start.points, end.points])

@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .ply_export import part_colour, part_colours
-from .sampling import random_subset
-from .scene import write_bytes_atomic
-from .types import Articulation
+from sparseart.io.ply import part_colour, part_colours
+from sparseart.geometry.sampling import random_subset
+from sparseart.io.scene import write_bytes_atomic
+from sparseart.types import Articulation
 
 MAX_PLOT_POINTS = 15000
 

@@ -1,4 +1,4 @@
-"""SIFT features lifted to 3D through pointmaps, and the point-cloud checks of :mod:`sparseart.align`.
+"""SIFT features lifted to 3D through pointmaps, and the point-cloud checks of :mod:`sparseart.align.ransac`.
 
 Keypoints come from OpenCV SIFT (RootSIFT descriptors), restricted to pixels with a valid 3D point
 (within ``LIFT_RADIUS_PX``: silhouette corners sit on the background side of the edge) and to the
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .types import Frame, Pointmap, SceneError
+from sparseart.types import Frame, Pointmap, SceneError
 
 # Lower than OpenCV's 0.04: rendered and indoor scenes are texture-poor; the ratio and mutual
 # checks, and RANSAC after them, remove what the extra low-contrast keypoints get wrong.
@@ -41,7 +41,7 @@ class FeatureMatches:
     n_ratio_passed: matches that passed the ratio and mutual checks, before dropping those
         without a valid 3D point.
     view_a, view_b: (K,) int64 view index of each match (0 for a single pair; pooled matches of
-        :func:`sparseart.align.align_states` say which start / end view each came from).
+        :func:`sparseart.align.ransac.align_states` say which start / end view each came from).
     """
 
     points_a: np.ndarray
@@ -233,7 +233,7 @@ def icp_polish(source: np.ndarray, target: np.ndarray, init: np.ndarray, size: f
     """Point-to-plane ICP (Tukey kernel, coarse to fine) of camera-frame ``source`` onto ``target``.
 
     Returns the polished (4, 4) or None when it does not improve the overlap. O(N log N)."""
-    from ._open3d import open3d
+    from sparseart.geometry.o3d import open3d
     o3d = open3d()
     reg = o3d.pipelines.registration
     voxel = size / 60.0
@@ -285,12 +285,12 @@ def _free_space_violation(points: np.ndarray, frame: Frame, pointmap: Pointmap, 
 def geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray],
                    size: float, seed: int) -> tuple[np.ndarray, float, float] | None:
     """Geometric fallback view j -> view i for metric clouds in their camera frames
-    (:func:`sparseart.joints.register.register_rigid`: PCA/FPFH hypotheses + coloured ICP).
+    (:func:`sparseart.geometry.icp.register_rigid`: PCA/FPFH hypotheses + coloured ICP).
 
     None for planar clouds (they slide), small overlap, or when either view sees through the other
     one's surfaces (free-space check, which rejects the turned-around fits of symmetric objects).
     Returns ((4, 4) j -> i, overlap fraction, edge weight in [0, 1)). O(N log N + H W)."""
-    from .joints.register import register_rigid
+    from sparseart.geometry.icp import register_rigid
 
     if min(spread(clouds[i])[2], spread(clouds[j])[2]) < PLANAR_FRACTION * size:
         return None

@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .align_features import FeatureMatches, lift_pixels
-from .types import Frame, Pointmap
+from sparseart.align.features import FeatureMatches, lift_pixels
+from sparseart.types import Frame, Pointmap
 
 DEFAULT_MIN_SCORE = 0.1   # LightGlue-ONNX's own filter threshold
 DEFAULT_MAX_SIDE = 1024   # long side of the model input for dynamic-size exports
@@ -56,8 +56,8 @@ class LightGlueMatcher:
     """
 
     def __init__(self, path: str | Path, options: LightGlueOptions | None = None) -> None:
-        from .lift.contract import ModelError
-        from .lift.onnx_model import OnnxLiftOptions, model_io, open_session
+        from sparseart.lift.contract import ModelError
+        from sparseart.lift.onnx_model import OnnxLiftOptions, model_io, open_session
 
         self.path = Path(path)
         self.options = options or LightGlueOptions()
@@ -105,7 +105,7 @@ class LightGlueMatcher:
 
     def match(self, frame_a: Frame, pointmap_a: Pointmap, frame_b: Frame, pointmap_b: Pointmap) -> FeatureMatches:
         """Matches between two images, lifted to 3D through their pointmaps (each in its own frame)."""
-        from .lift.contract import ModelError
+        from sparseart.lift.contract import ModelError
 
         size = self.model_size(*frame_a.rgb.shape[:2])
         images = np.stack([self._image(frame_a, size), self._image(frame_b, size)])

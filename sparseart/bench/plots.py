@@ -10,8 +10,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from .bench_grid import pareto_front
-from .scene import write_bytes_atomic
+from sparseart.bench.grid import pareto_front
+from sparseart.io.scene import write_bytes_atomic
 
 METHOD_STYLE = {"sparseart": ("tab:blue", "o"), "icp_peer": ("tab:orange", "s")}
 ERROR_FLOOR_DEG = 0.01  # log axis: errors below this are drawn at it

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .scene import write_bytes_atomic
-from .types import Articulation
+from sparseart.io.scene import write_bytes_atomic
+from sparseart.types import Articulation
 
 UNASSIGNED_RGB = (0.1, 0.1, 0.1)
 STATIC_RGB = (0.62, 0.62, 0.62)

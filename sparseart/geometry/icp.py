@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sparseart.joints.screw import apply_transform, make_transform, rotation_angle
-from sparseart.sampling import random_subset
+from sparseart.geometry.transforms import apply_transform, make_transform, rotation_angle
+from sparseart.geometry.sampling import random_subset
 
 
 @dataclass
@@ -70,7 +70,7 @@ def _hypotheses(source: np.ndarray, target: np.ndarray) -> list[tuple[str, np.nd
 
 
 def _o3d_cloud(points: np.ndarray, radius: float | None = None):
-    from .._open3d import open3d
+    from sparseart.geometry.o3d import open3d
     o3d = open3d()
 
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
@@ -81,7 +81,7 @@ def _o3d_cloud(points: np.ndarray, radius: float | None = None):
 
 def _fpfh_hypothesis(source_cloud, target_cloud, voxel: float, seed: int) -> np.ndarray | None:
     """open3d FPFH + RANSAC; None when it fails. Roughly O(N log N) for features + RANSAC."""
-    from .._open3d import open3d
+    from sparseart.geometry.o3d import open3d
     o3d = open3d()
 
     reg = o3d.pipelines.registration
@@ -103,7 +103,7 @@ def _fpfh_hypothesis(source_cloud, target_cloud, voxel: float, seed: int) -> np.
 
 def _icp(source_cloud, target_cloud, init: np.ndarray, distances: tuple[float, ...]) -> np.ndarray:
     """Coarse-to-fine point-to-plane ICP with a Tukey kernel (open3d); falls back to point-to-point."""
-    from .._open3d import open3d
+    from sparseart.geometry.o3d import open3d
     o3d = open3d()
 
     reg = o3d.pipelines.registration
@@ -203,7 +203,7 @@ def register_rigid(
     if init is None and use_fpfh and max(r["inlier_fraction"] for r in results) < fpfh_below \
             and min(len(source_sub), len(target_sub)) >= 30:
         # The cheap hypotheses did not explain the data: try features (about 0.2-1 s).
-        source_cloud.estimate_normals(__import__("sparseart._open3d", fromlist=["open3d"]).open3d().geometry.KDTreeSearchParamHybrid(
+        source_cloud.estimate_normals(__import__("sparseart.geometry.o3d", fromlist=["open3d"]).open3d().geometry.KDTreeSearchParamHybrid(
             radius=4.0 * resolution, max_nn=30))
         fpfh = _fpfh_hypothesis(source_cloud, target_cloud, 2.0 * resolution, seed)
         if fpfh is not None:
@@ -238,7 +238,7 @@ def register_rigid(
 def _colored_polish(source_n, target_n, source_colors, target_colors, transform, inlier_distance,
                     resolution, target_tree, source_sub, target_sub, rng, max_points, fraction):
     """open3d coloured ICP on subsamples; returns the better of the polished and given transform."""
-    from .._open3d import open3d
+    from sparseart.geometry.o3d import open3d
     o3d = open3d()
 
     reg = o3d.pipelines.registration

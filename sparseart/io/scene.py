@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from .types import STATES, Camera, Frame, Scene, SceneError
+from sparseart.types import STATES, Camera, Frame, Scene, SceneError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MAX_VIEWS_PER_STATE = 4

@@ -18,9 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .ply_export import write_ply
-from .scene import write_bytes_atomic
-from .types import Articulation
+from sparseart.io.ply import write_ply
+from sparseart.io.scene import write_bytes_atomic
+from sparseart.types import Articulation
 
 PLACEHOLDER_EFFORT = 1.0
 PLACEHOLDER_VELOCITY = 1.0
