@@ -1,0 +1,62 @@
+"""Point-cloud helpers shared by every stage: spacing, extent, principal spread, valid points.
+
+All points are (N, 3) float64 in whatever frame and unit the caller uses; every length returned
+is in that unit, so callers stay unit-free by expressing thresholds as multiples of these.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from sparseart.types import Pointmap
+
+
+def median_spacing(points: np.ndarray, *, sample: int | None = None, rng: np.random.Generator | None = None,
+                   tree: cKDTree | None = None) -> float:
+    """Median nearest-neighbour distance of a cloud (its sampling density), in the cloud's unit.
+
+    points: (N, 3) float64. sample: query at most this many points (chosen by ``rng``, default
+    seed 0) against the WHOLE cloud; None = every point. tree: a prebuilt cKDTree of ``points``.
+    Falls back to 1e-3 of the largest extent for clouds with duplicate points, and to 1.0 for
+    fewer than 2 points. O(N log N) for the tree + O(S log N) for S queries.
+    """
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if points.shape[0] < 2:
+        return 1.0
+    tree = tree if tree is not None else cKDTree(points)
+    query = points
+    if sample is not None and points.shape[0] > sample:
+        rng = rng if rng is not None else np.random.default_rng(0)
+        query = points[rng.choice(points.shape[0], size=sample, replace=False)]
+    distances, _ = tree.query(query, k=2)
+    spacing = float(np.median(distances[:, 1]))
+    if spacing > 0:
+        return spacing
+    return float(np.ptp(points, axis=0).max() * 1e-3) or 1e-12
+
+
+def scene_size(points: np.ndarray, max_points: int = 20000) -> float:
+    """Median distance of the finite points to their centroid (the scale of RANSAC thresholds).
+
+    Uses at most ``max_points`` evenly strided points. O(N)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    points = points[np.isfinite(points).all(axis=1)]
+    if points.shape[0] == 0:
+        return 0.0
+    if points.shape[0] > max_points:
+        points = points[np.linspace(0, points.shape[0] - 1, max_points).astype(int)]
+    return float(np.median(np.linalg.norm(points - points.mean(axis=0), axis=1)))
+
+
+def spread(points: np.ndarray) -> np.ndarray:
+    """(3,) RMS extent of the points along their principal axes, largest first. O(N)."""
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if points.shape[0] < 2:
+        return np.zeros(3)
+    singular = np.linalg.svd(points - points.mean(axis=0), compute_uv=False)
+    return np.pad(singular, (0, 3 - singular.size)) / np.sqrt(points.shape[0])
+
+
+def valid_points(pointmap: Pointmap) -> np.ndarray:
+    """(K, 3) float64 points of a pointmap's valid, finite pixels, in the pointmap's frame."""
+    return pointmap.points[pointmap.valid & np.isfinite(pointmap.points).all(axis=1)]
