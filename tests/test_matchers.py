@@ -226,6 +226,7 @@ def test_lightglue_pipeline_adapter(tmp_path):
     contract.write_text(json.dumps({"schema": "sparseart-matcher/1", "kind": "lightglue-pipeline",
                                     "matcher": "lg.onnx", "min_score": 0.85}))
     assert len(open_matcher(contract, threads=1).match(image, image)) == 1
+    assert len(open_matcher(contract, threads=1, min_score=0.0).match(image, image)) == 3   # override wins
 
 
 def test_json_contract_resolves_relative_paths(tmp_path):
@@ -243,6 +244,9 @@ def test_json_contract_resolves_relative_paths(tmp_path):
                                     "detector": str(XFEAT), "min_similarity": 0.9}))
     mnn = open_matcher(contract, threads=1)
     assert isinstance(mnn, XFeatMNNMatcher) and mnn.min_similarity == 0.9
+    with pytest.raises(MatcherError, match="min_score does not apply"):
+        open_matcher(contract, threads=1, min_score=0.5)
+    assert open_matcher(f"xfeat:{XFEAT},{LIGHTERGLUE}", threads=1, min_score=0.5).min_score == 0.5
 
 
 def _tiny_model(path: Path) -> Path:

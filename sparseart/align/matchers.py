@@ -660,7 +660,7 @@ def _from_contract(path: Path, threads: int) -> PixelMatcher:
                               min_score=DEFAULT_MIN_SCORE if min_score is None else min_score)
 
 
-def open_matcher(spec: str | Path, *, threads: int = 0) -> PixelMatcher:
+def open_matcher(spec: str | Path, *, threads: int = 0, min_score: float | None = None) -> PixelMatcher:
     """A :class:`PixelMatcher` from a spec.
 
     Specs:
@@ -673,10 +673,27 @@ def open_matcher(spec: str | Path, *, threads: int = 0) -> PixelMatcher:
             a field that does not apply to the kind is an error);
         ``PATH.onnx``                    an end-to-end LightGlue-ONNX pipeline export.
     threads: onnxruntime intra-op threads per session (0 = its default).
+    min_score: overrides the match-score threshold of a LighterGlue or LightGlue-pipeline matcher
+        (e.g. a command-line option; wins over the contract); an error for MNN matchers.
 
     Raises:
         MatcherError (a SceneError): one line naming the spec, file or field at fault.
     """
+    matcher = _open_matcher(spec, threads)
+    if min_score is not None:
+        if not 0.0 <= min_score <= 1.0:
+            raise MatcherError(f"matcher spec {str(spec)!r}: min_score must lie in [0, 1], got {min_score}")
+        if isinstance(matcher, LighterGlueMatcher):
+            matcher.min_score = float(min_score)
+        elif isinstance(matcher, LightGluePipelineMatcher):
+            matcher.pipeline.options.min_score = float(min_score)
+        else:
+            raise MatcherError(f"matcher spec {str(spec)!r}: min_score does not apply to {type(matcher).__name__} "
+                               f"(mutual nearest neighbours use min_similarity, set in a JSON contract)")
+    return matcher
+
+
+def _open_matcher(spec: str | Path, threads: int) -> PixelMatcher:
     text = str(spec).strip()
     if not text:
         raise MatcherError("matcher spec is empty (expected xfeat:DET.onnx[,MATCHER.onnx], a LightGlue "
