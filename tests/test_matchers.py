@@ -144,7 +144,8 @@ def rendered(tmp_path_factory):
 
 
 def test_rendered_views_lifted_matches_agree_in_3d(rendered, extractor, lighterglue):
-    from sparseart.align.features import match_features, valid_points
+    from sparseart.align.features import match_features
+    from sparseart.geometry.clouds import valid_points
 
     frames, pointmaps = rendered
     points = np.concatenate([valid_points(p) for p in pointmaps])
