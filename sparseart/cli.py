@@ -86,6 +86,18 @@ def _parser() -> argparse.ArgumentParser:
     render.add_argument("--scramble-masks", action="store_true", help="random mask ids per image")
     render.add_argument("--no-masks", action="store_true", help="write no masks")
     render.add_argument("--depth-noise", type=float, default=0.0, help="multiplicative depth noise sigma")
+    real = render.add_argument_group(
+        "realism (sparseart.datasets.realism)",
+        "each knob is a level: 0 = off, 1 = its default strength (below), other values scale it (max 5); "
+        "--realism picks a preset, the knob flags override single levels, e.g. "
+        "--realism realistic --occluder 0 --jpeg 0.5")
+    real.add_argument("--realism", choices=["clean", "realistic"], default="clean",
+                      help="clean (default: the plain raycast, unchanged scenes) or realistic (every knob at 1)")
+    from .datasets.realism import KNOB_TABLE
+
+    for knob, (what, at_one) in KNOB_TABLE.items():
+        real.add_argument(_knob_flag(knob), type=float, default=None, metavar="LEVEL", dest=f"realism_{knob}",
+                          help=f"{what} (at 1: {at_one})".replace("%", "%%"))
     bench = commands.add_parser("bench", help="accuracy against run time over rendered objects, with an ICP peer")
     bench.add_argument("--objects", type=Path, nargs="+", default=None,
                        help="object folders (or folders of them); default ../shared/data/partnet")
@@ -260,19 +272,43 @@ def _refine_settings(args: argparse.Namespace):
     return options, states
 
 
+def _knob_flag(knob: str) -> str:
+    """Command-line flag of a realism knob (``depth_noise`` -> ``--depth-noise-level``, since
+    ``--depth-noise`` is the older plain sigma)."""
+    return "--depth-noise-level" if knob == "depth_noise" else "--" + knob.replace("_", "-")
+
+
+def _realism_settings(args: argparse.Namespace):
+    """The Realism of --realism and the knob flags."""
+    from .datasets.realism import KNOBS, preset
+
+    levels = {k: getattr(args, f"realism_{k}") for k in KNOBS if getattr(args, f"realism_{k}", None) is not None}
+    try:
+        return preset(args.realism).with_levels(**levels)
+    except ValueError as error:
+        flags = {f"Realism.{k}": _knob_flag(k) for k in KNOBS}
+        message = str(error)
+        for name, flag in flags.items():
+            message = message.replace(name + ":", flag + ":")
+        raise SceneError(message) from None
+
+
 def _cmd_render(args: argparse.Namespace) -> int:
     from .datasets.partnet import render_partnet_scene
 
     if not (args.object_dir / "mobility.urdf").exists():
         raise SceneError(f"{args.object_dir / 'mobility.urdf'}: not found (expected a PartNet-Mobility object)")
+    realism = _realism_settings(args)
     gt = render_partnet_scene(args.object_dir, args.scene, views=args.views, seed=args.seed,
                               width=args.width, height=args.height, posed=not args.unposed,
                               scramble_masks=args.scramble_masks, depth_noise=args.depth_noise,
-                              write_masks=not args.no_masks)
+                              write_masks=not args.no_masks, realism=realism)
     for joint in gt["joints"]:
         amount = (f"angle {math.degrees(joint['angle']):.1f} deg" if joint["type"] == "revolute"
                   else f"distance {joint['distance']:.3f}")
         print(f"{joint['name']}: {joint['type']} {amount}")
+    if not realism.is_clean:
+        print("realism: " + ", ".join(f"{k} {v:g}" for k, v in realism.levels().items() if v))
     print(f"wrote {args.scene}")
     return 0
 

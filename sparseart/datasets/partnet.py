@@ -25,6 +25,7 @@ import numpy as np
 
 from sparseart.datasets.meshes import ArticulatedObject, RenderMesh, load_articulated_object
 from sparseart.datasets.raycast import PreparedScene, render_view
+from sparseart.datasets.realism import CLEAN, Realism
 from sparseart.datasets.scene_writer import RenderedView, write_scene
 from sparseart.datasets.urdf import Joint
 
@@ -200,14 +201,18 @@ def render_articulated_scene(obj: ArticulatedObject, scene_dir: str | Path,
                              write_masks: bool = True, same_cameras: bool = True,
                              hfov_deg: float = DEFAULT_HFOV_DEG, fill: float = 0.95,
                              flying_pixels: float = 0.0, pose_noise_deg: float = 0.0,
-                             pose_noise_m: float = 0.0) -> dict:
+                             pose_noise_m: float = 0.0, realism: Realism = CLEAN) -> dict:
     """Render ``obj`` at ``q_start`` and ``q_end`` into ``scene_dir`` (design section 2) + gt.json.
 
     Mask label = 1 + part group (1 = static base, 2.. = each movable joint's child subtree).
     ``same_cameras=False`` draws fresh camera poses for the end state; ``fill`` is the fraction of
     the smaller half field of view spanned by the bounding sphere. ``flying_pixels`` (fraction of
     depth-edge pixels), ``pose_noise_deg`` (degrees) and ``pose_noise_m`` (object units = metres
-    for metric objects) degrade the written scene (see ``scene_writer.write_scene``). Returns the gt dict.
+    for metric objects) degrade the written scene (see ``scene_writer.write_scene``).
+    ``realism`` (``sparseart.datasets.realism``; default clean = the plain raycast, byte-identical
+    to renders made without it) adds background, a hand in the end state, depth / image / mask
+    degradations, ``conf/`` files and pose error; its levels and draws go to gt.json under
+    ``"realism"``. Camera placement never depends on it. Returns the gt dict.
     """
     rng = np.random.default_rng(seed)
     parts0 = obj.posed_parts(q_start)
@@ -225,16 +230,50 @@ def render_articulated_scene(obj: ArticulatedObject, scene_dir: str | Path,
     cams0 = place_cameras(center, dist, az, views, rng)
     cams1 = cams0 if same_cameras else place_cameras(center, dist, az, views, rng)
     rendered = {}
-    for state, cams in (("start", cams0), ("end", cams1)):
-        rendered[state] = [RenderedView(*render_view(preps[state], K, c, width, height), K, c)
-                           for c in cams]
+    if realism.is_clean:
+        for state, cams in (("start", cams0), ("end", cams1)):
+            rendered[state] = [RenderedView(*render_view(preps[state], K, c, width, height), K, c)
+                               for c in cams]
+        realism_info = None
+    else:
+        rendered, realism_info = _render_realistic(realism, seed, parts0, parts1, preps,
+                                                   {"start": cams0, "end": cams1}, K, width, height, scale)
     gt = {"schema": GT_SCHEMA, "object": obj.name, "frame": "world", "units": "object units",
           "scale": scale, "static_mask_id": 1, "joints": gt_joints(obj, q_start, q_end, parts0),
           "joint_states": {"start": dict(q_start), "end": dict(q_end)}}
+    if realism_info is not None:
+        gt["realism"] = realism_info
+    extra_deg, extra_m = realism.pose_error()
     return write_scene(scene_dir, rendered["start"], rendered["end"], gt, posed=posed,
                        scramble_masks=scramble_masks, depth_noise=depth_noise,
                        write_masks=write_masks, seed=seed, flying_pixels=flying_pixels,
-                       pose_noise_deg=pose_noise_deg, pose_noise_m=pose_noise_m)
+                       pose_noise_deg=pose_noise_deg + extra_deg, pose_noise_m=pose_noise_m + extra_m)
+
+
+def _render_realistic(realism: Realism, seed: int, parts0: list[tuple[RenderMesh, int]],
+                      parts1: list[tuple[RenderMesh, int]], preps: dict[str, PreparedScene],
+                      cams: dict[str, list[np.ndarray]], K: np.ndarray, width: int, height: int,
+                      scale: float) -> tuple[dict[str, list[RenderedView]], dict]:
+    """Raycast both states with the realism geometry (background, end-state hand) and apply the
+    per-view knobs. Returns ({state: [RenderedView]}, gt "realism" record)."""
+    from sparseart.datasets.realism import degrade_view, scene_extras
+
+    extras, info = scene_extras(realism, seed, parts0, parts1, preps["end"], cams, K, width, height, scale)
+    max_label = max(int(lab) for _, lab in parts0 + parts1)
+    rendered: dict[str, list[RenderedView]] = {}
+    views_info: dict[str, list[dict]] = {}
+    for state, parts in (("start", parts0), ("end", parts1)):
+        prep = PreparedScene(list(parts) + extras[state]) if extras[state] else preps[state]
+        rendered[state], views_info[state] = [], []
+        for i, c in enumerate(cams[state]):
+            rgb, depth, label = render_view(prep, K, c, width, height)
+            v = degrade_view(rgb, depth, label, K, realism, seed, state, i, max_label)
+            rendered[state].append(RenderedView(v.rgb, v.depth, v.label, K, c, conf=v.conf,
+                                                label_groups=v.label_groups,
+                                                true_label=v.true_label if realism.mask_ragged > 0 else None))
+            views_info[state].append(v.info)
+    record = {"levels": realism.levels(), **info, "views": views_info}
+    return rendered, record
 
 
 def render_partnet_scene(object_dir: str | Path, scene_dir: str | Path, views: int = 3,
@@ -243,13 +282,14 @@ def render_partnet_scene(object_dir: str | Path, scene_dir: str | Path, views: i
                          write_masks: bool = True, start_fraction: float | None = None,
                          end_fraction: float | None = None, same_cameras: bool = True,
                          flying_pixels: float = 0.0, pose_noise_deg: float = 0.0,
-                         pose_noise_m: float = 0.0) -> dict:
+                         pose_noise_m: float = 0.0, realism: Realism = CLEAN) -> dict:
     """Render a PartNet-Mobility object folder (``mobility.urdf`` + meshes) as a two-state scene.
 
     Every movable joint changes between start and end (see :func:`sample_joint_states`).
     Objects with several movable joints start with their revolute joints at >= 30 % of their
     range (doors ajar), so parts behind a door (an oven's racks) are seen in both states: a part
-    hidden in one state cannot be measured from geometry by any method.
+    hidden in one state cannot be measured from geometry by any method. ``realism``: see
+    :func:`render_articulated_scene` (joint states and cameras do not depend on it).
     Raises SceneError naming the file when the URDF or a mesh/texture is missing. Returns the gt.
     """
     obj = load_articulated_object(object_dir)
@@ -266,4 +306,5 @@ def render_partnet_scene(object_dir: str | Path, scene_dir: str | Path, views: i
                                     height=height, posed=posed, scramble_masks=scramble_masks,
                                     depth_noise=depth_noise, write_masks=write_masks,
                                     same_cameras=same_cameras, flying_pixels=flying_pixels,
-                                    pose_noise_deg=pose_noise_deg, pose_noise_m=pose_noise_m)
+                                    pose_noise_deg=pose_noise_deg, pose_noise_m=pose_noise_m,
+                                    realism=realism)

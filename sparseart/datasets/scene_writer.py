@@ -2,7 +2,9 @@
 
 Layout: ``{start,end}/rgb/NNN.png`` (8-bit RGB), ``{start,end}/depth/NNN.png`` (uint16,
 value = metres * depth_scale, 0 = invalid), ``{start,end}/mask/NNN.png`` (uint16 labels,
-0 = background), ``cameras.json`` and ``gt.json``.
+0 = background), optional ``{start,end}/conf/NNN.npy`` (float32 depth confidence in [0, 1], when a
+view carries one), ``cameras.json`` and ``gt.json``; ``gt_mask/{start,end}/NNN.png`` (true group
+labels) when a view's written mask was degraded on purpose (``RenderedView.true_label``).
 """
 from __future__ import annotations
 
@@ -19,13 +21,21 @@ import numpy as np
 class RenderedView:
     """One rendered image. rgb (H, W, 3) uint8; depth (H, W) float64 metres (0 = invalid);
     label (H, W) uint16 unscrambled group labels (0 = background); K (3, 3) and
-    cam_to_world (4, 4) float64 OpenCV camera -> world."""
+    cam_to_world (4, 4) float64 OpenCV camera -> world.
+
+    Optional (realism, ``sparseart.datasets.realism``): conf (H, W) float32 depth confidence in
+    [0, 1] written as ``conf/NNN.npy``; label_groups {id in ``label``: true group label} when the
+    ids of ``label`` are not the groups (a split made a new id); true_label (H, W) uint16 group
+    labels when ``label`` was degraded on purpose (written under ``gt_mask/``)."""
 
     rgb: np.ndarray
     depth: np.ndarray
     label: np.ndarray
     K: np.ndarray
     cam_to_world: np.ndarray
+    conf: np.ndarray | None = None
+    label_groups: dict[int, int] | None = None
+    true_label: np.ndarray | None = None
 
 
 def _write_png(path: Path, img: np.ndarray) -> None:
@@ -37,6 +47,17 @@ def _write_png(path: Path, img: np.ndarray) -> None:
 def _write_json(path: Path, obj: dict) -> None:
     tmp = path.with_suffix(path.suffix + ".tmp")
     tmp.write_text(json.dumps(obj, indent=2))
+    os.replace(tmp, path)
+
+
+def _write_npy(path: Path, array: np.ndarray, shape: tuple[int, ...]) -> None:
+    """Save ``array`` as float32 .npy (atomically); its shape must be ``shape``."""
+    a = np.asarray(array, dtype=np.float32)
+    if a.shape != tuple(shape):
+        raise ValueError(f"{path}: confidence shape {a.shape} differs from the depth's {tuple(shape)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.npy")
+    np.save(tmp, a)
     os.replace(tmp, path)
 
 
@@ -127,6 +148,9 @@ def write_scene(scene_dir: str | Path, start: list[RenderedView], end: list[Rend
         (:func:`add_flying_pixels`), applied before the noise; seeded.
     pose_noise_deg / pose_noise_m: error of the cam_to_world written to cameras.json
         (:func:`perturb_pose`; degrees, scene units); gt.json keeps the true poses; seeded.
+    Views with ``conf`` get ``conf/NNN.npy``; ``label_groups`` are composed into gt's
+    ``"mask_maps"`` (written whenever some written id is not its group); ``true_label`` goes to
+    ``gt_mask/{state}/NNN.png`` (recorded in gt as ``"gt_masks"``).
     Returns the gt dict as written (or None).
     """
     scene_dir = Path(scene_dir)
@@ -136,6 +160,8 @@ def write_scene(scene_dir: str | Path, start: list[RenderedView], end: list[Rend
     mask_maps: dict[str, list] = {}
     gt_cams: dict[str, list] = {}
     used: set[tuple] = set()
+    remapped = False
+    wrote_true = False
     for state, views in (("start", start), ("end", end)):
         entries, maps, c2ws = [], [], []
         for i, v in enumerate(views):
@@ -151,12 +177,26 @@ def write_scene(scene_dir: str | Path, start: list[RenderedView], end: list[Rend
                 q = np.clip(np.round(d * depth_scale), 0, 65535).astype(np.uint16)
                 q[valid & (q == 0)] = 1
                 _write_png(scene_dir / state / "depth" / name, q)
+                if v.conf is not None:
+                    _write_npy(scene_dir / state / "conf" / f"{i:03d}.npy", v.conf, q.shape)
             if write_masks:
                 lab = v.label.astype(np.uint16)
+                groups = v.label_groups
+                if groups is not None and any(int(k) != int(g) for k, g in groups.items()):
+                    remapped = True
                 if scramble_masks:
                     lab, m = scramble_labels(lab, rng, used)
-                    maps.append({str(k): val for k, val in sorted(m.items())})
+                    if groups is not None:
+                        m = {k: int(groups.get(o, o)) for k, o in m.items()}
+                elif groups is not None:
+                    m = {int(k): int(g) for k, g in groups.items()}
+                else:  # identity, in case another view's ids need a map
+                    m = {int(k): int(k) for k in np.unique(lab) if k != 0}
+                maps.append({str(k): val for k, val in sorted(m.items())})
                 _write_png(scene_dir / state / "mask" / name, lab)
+                if v.true_label is not None:
+                    _write_png(scene_dir / "gt_mask" / state / name, v.true_label.astype(np.uint16))
+                    wrote_true = True
             e = {"image": f"rgb/{name}", "K": np.asarray(v.K, float).tolist(),
                  "width": int(v.rgb.shape[1]), "height": int(v.rgb.shape[0])}
             if posed:
@@ -178,7 +218,9 @@ def write_scene(scene_dir: str | Path, start: list[RenderedView], end: list[Rend
     gt["depth_noise"] = float(depth_noise)
     gt["flying_pixels"] = float(flying_pixels)
     gt["pose_noise"] = {"deg": float(pose_noise_deg), "translation": float(pose_noise_m)}
-    if write_masks and scramble_masks:
+    if write_masks and (scramble_masks or remapped):
         gt["mask_maps"] = mask_maps
+    if wrote_true:
+        gt["gt_masks"] = "gt_mask/{state}/NNN.png"
     _write_json(scene_dir / "gt.json", gt)
     return gt
