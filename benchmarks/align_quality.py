@@ -27,7 +27,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from sparseart.align.ransac import AlignmentError, align_states, register_views, transform_pointmap  # noqa: E402
+from sparseart.align import AlignmentError, align_states, register_views, transform_pointmap  # noqa: E402
 from sparseart.datasets.partnet import render_partnet_scene  # noqa: E402
 from sparseart.lift.rgbd import pointmap_from_depth  # noqa: E402
 from sparseart.io.scene import load_scene  # noqa: E402

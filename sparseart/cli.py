@@ -40,11 +40,12 @@ def _parser() -> argparse.ArgumentParser:
     onnx.add_argument("--conf-threshold", type=float, default=None,
                       help="drop pixels whose confidence (mapped to [0, 1]) is below this")
     onnx.add_argument("--threads", type=int, default=0, help="onnxruntime threads (0 = physical cores)")
-    onnx.add_argument("--matcher", type=Path, default=None,
-                      help="LightGlue-ONNX pipeline export (.onnx) to match images of unposed scenes "
-                           "instead of SIFT")
+    onnx.add_argument("--matcher", default=None,
+                      help="learned matcher for unposed scenes instead of SIFT: xfeat:DET.onnx,MATCHER.onnx "
+                           "(XFeat + LighterGlue), xfeat:DET.onnx (mutual nearest neighbours), a "
+                           "sparseart-matcher/1 .json, or a LightGlue-ONNX pipeline export (.onnx)")
     onnx.add_argument("--matcher-min-score", type=float, default=None,
-                      help="drop LightGlue matches scoring below this (default 0.1)")
+                      help="drop (Lighter/Light)Glue matches scoring below this (default 0.1)")
     vlm = run.add_argument_group("part labeler")
     vlm.add_argument("--labeler", choices=["rules", "vlm"], default="rules",
                      help="rules (default, no model) or vlm (OpenAI-compatible chat API; key from "
@@ -137,8 +138,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     refine_options, render_states = _refine_settings(args) if args.refine else (None, ())
     options = RunOptions(joint_type=args.joint_type, use_masks=not args.no_masks, seed=args.seed,
                          refine=args.refine, refine_options=refine_options, segmenter=args.segmenter,
-                         model=args.model, onnx_options=_onnx_settings(args), matcher=args.matcher,
-                         matcher_options=_matcher_settings(args))
+                         model=args.model, onnx_options=_onnx_settings(args), threads=_threads(args),
+                         matcher=args.matcher, matcher_min_score=_matcher_min_score(args))
     result = run(args.scene, labeler=_labeler(args), options=options)
     path = write_articulation(result, args.out)
     if args.refine:
@@ -155,20 +156,20 @@ def _cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _matcher_settings(args: argparse.Namespace):
-    """LightGlueOptions from --matcher-min-score/--threads (None without --matcher)."""
-    if args.matcher is None:
-        if args.matcher_min_score is not None:
-            raise SceneError("--matcher-min-score needs --matcher")
-        return None
-    from sparseart.align.lightglue import DEFAULT_MIN_SCORE, LightGlueOptions
-
-    score = DEFAULT_MIN_SCORE if args.matcher_min_score is None else args.matcher_min_score
-    if not 0.0 <= score <= 1.0:
-        raise SceneError(f"--matcher-min-score must lie in [0, 1], got {score}")
+def _threads(args: argparse.Namespace) -> int:
     if args.threads < 0:
         raise SceneError(f"--threads must be >= 0, got {args.threads}")
-    return LightGlueOptions(threads=args.threads, min_score=score)
+    return args.threads
+
+
+def _matcher_min_score(args: argparse.Namespace) -> float | None:
+    """--matcher-min-score, checked (None: the matcher's own default)."""
+    if args.matcher is None and args.matcher_min_score is not None:
+        raise SceneError("--matcher-min-score needs --matcher")
+    score = args.matcher_min_score
+    if score is not None and not 0.0 <= score <= 1.0:
+        raise SceneError(f"--matcher-min-score must lie in [0, 1], got {score}")
+    return score
 
 
 def _onnx_settings(args: argparse.Namespace):
@@ -246,7 +247,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 def _refine_settings(args: argparse.Namespace):
     """(RefineOptions, render-state fractions) from the run command's --refine-* options."""
-    from .refine.api import RefineOptions
+    from .refine.api import RefineOptions, with_iterations
 
     try:
         states = tuple(float(v) for v in args.render_states.split(",") if v.strip())
@@ -258,11 +259,7 @@ def _refine_settings(args: argparse.Namespace):
     if args.refine_iters is not None:
         if args.refine_iters < 0:
             raise SceneError(f"--refine-iters must be >= 0, got {args.refine_iters}")
-        defaults = RefineOptions()
-        ratio = args.refine_iters / defaults.cross_mobile_iters
-        options.cross_mobile_iters = args.refine_iters
-        options.per_state_iters = int(round(defaults.per_state_iters * ratio))
-        options.cross_static_iters = int(round(defaults.cross_static_iters * ratio))
+        options = with_iterations(options, args.refine_iters)
     if args.refine_holdout < 0:
         raise SceneError(f"--refine-holdout must be >= 0, got {args.refine_holdout}")
     if args.refine_budget is not None:

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from sparseart.align.ransac import (AlignmentError, Similarity, align_states, match_features, ransac_similarity,
+from sparseart.align import (AlignmentError, Similarity, align_states, match_features, ransac_similarity,
                              register_views, transform_pointmap, umeyama)
 from sparseart.lift.rgbd import pointmap_from_depth
 from sparseart.types import Camera, Frame, SceneError

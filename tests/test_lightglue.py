@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from lightglue_builders import build_lightglue, build_split_extractor
-from sparseart.align.ransac import AlignmentError, align_states, register_views
+from sparseart.align import AlignmentError, align_states, register_views
 from sparseart.align.lightglue import LightGlueMatcher, LightGlueOptions
 from sparseart.lift.contract import ModelError
 from sparseart.bench.metrics import axis_angle_error_deg

@@ -7,7 +7,6 @@ error <= 0.02 object units, over every movable joint of every object.
 from __future__ import annotations
 
 import statistics
-from pathlib import Path
 
 import pytest
 

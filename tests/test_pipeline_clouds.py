@@ -90,7 +90,7 @@ def test_repeated_structure_slide_refit_from_static_axes(seed) -> None:
     """A rack slid 0.25 along x, seeded one wire sideways (the aliased local minimum a labeler can
     hand over): without a static part the fit stays ~11 deg off; with the static box's axes as extra
     seeds the slide is recovered and the re-fit is stated in a warning."""
-    from sparseart.pipeline import _fit_part
+    from sparseart.joints.candidates import fit_part
 
     rng = np.random.default_rng(seed)
     start, end = _wire_rack(rng), _wire_rack(rng) + [0.25, 0.0, 0.0]
@@ -98,9 +98,9 @@ def test_repeated_structure_slide_refit_from_static_axes(seed) -> None:
     aliased = np.eye(4)
     aliased[:3, 3] = [0.25, 0.05, 0.0]
     colours = (np.full((len(start), 3), 0.5), np.full((len(end), 3), 0.5))
-    alone = _fit_part(start, end, *colours, "auto", [aliased], None)
+    alone = fit_part(start, end, *colours, "auto", [aliased], None)
     assert metrics.axis_angle_error_deg(alone.axis, [1, 0, 0]) > 5.0  # the trap is real
-    joint = _fit_part(start, end, *colours, "auto", [aliased], static)
+    joint = fit_part(start, end, *colours, "auto", [aliased], static)
     assert joint.type == "prismatic"
     assert metrics.axis_angle_error_deg(joint.axis, [1, 0, 0]) < 1.0
     assert abs(abs(joint.distance) - 0.25) < 0.01
@@ -110,7 +110,7 @@ def test_repeated_structure_slide_refit_from_static_axes(seed) -> None:
 def test_static_axis_seeds_point_along_the_slide() -> None:
     """Seeds: one per static principal axis not within 2 deg of the fitted slide, signed towards it,
     with the slide's length; none for revolute fits or without a static part."""
-    from sparseart.pipeline import _static_axis_seeds
+    from sparseart.joints.candidates import static_axis_seeds
     from sparseart.types import JointEstimate
 
     rng = np.random.default_rng(0)
@@ -118,23 +118,23 @@ def test_static_axis_seeds_point_along_the_slide() -> None:
     axis = np.array([-np.cos(0.3), np.sin(0.3), 0.0])
     joint = JointEstimate(type="prismatic", axis=axis, origin=np.zeros(3), angle=None, distance=0.2,
                           transform=np.eye(4), uncertainty={}, residual=0.01, confidence=1.0)
-    seeds = _static_axis_seeds(joint, static)
+    seeds = static_axis_seeds(joint, static)
     assert len(seeds) == 3
     for seed in seeds:
         assert abs(np.linalg.norm(seed[:3, 3]) - 0.2) < 1e-12
         assert seed[:3, 3] @ axis >= 0
-    assert _static_axis_seeds(joint, None) == []
+    assert static_axis_seeds(joint, None) == []
     centred = static - static.mean(axis=0)
     joint.axis = np.linalg.eigh(centred.T @ centred)[1][:, 2]  # the box's long axis: that seed adds nothing
-    assert len(_static_axis_seeds(joint, static)) == 2
+    assert len(static_axis_seeds(joint, static)) == 2
     joint.type = "revolute"
-    assert _static_axis_seeds(joint, static) == []
+    assert static_axis_seeds(joint, static) == []
 
 
 def test_rival_slides_widen_the_axis_uncertainty() -> None:
     """A slide that another direction >= 10 deg away explains within +10 % residual gets its axis
     sigma raised to that angle and a warning; close rivals or worse rivals change nothing."""
-    from sparseart.pipeline import _widen_for_rival_slides
+    from sparseart.joints.candidates import widen_for_rival_slides
     from sparseart.types import JointEstimate
 
     def slide(degrees: float, residual: float) -> JointEstimate:
@@ -144,9 +144,9 @@ def test_rival_slides_widen_the_axis_uncertainty() -> None:
                              residual=residual, confidence=1.0)
 
     chosen = slide(0.0, 0.0100)
-    _widen_for_rival_slides(chosen, [chosen, slide(4.0, 0.0101), slide(30.0, 0.0120)])
+    widen_for_rival_slides(chosen, [chosen, slide(4.0, 0.0101), slide(30.0, 0.0120)])
     assert chosen.uncertainty["axis_deg"] == 0.7 and not chosen.warnings
-    _widen_for_rival_slides(chosen, [chosen, slide(18.0, 0.0105)])
+    widen_for_rival_slides(chosen, [chosen, slide(18.0, 0.0105)])
     assert chosen.uncertainty["axis_deg"] == pytest.approx(18.0)
     assert "18.0 deg away fits almost as well (residual +5 %)" in chosen.warnings[0]
 

@@ -30,18 +30,19 @@ def small_run(tmp_path_factory):
 
 @requires_partnet
 def test_stages_can_be_switched_off_and_keep_the_seed(small_run):
-    from sparseart.refine.api import RefineOptions, _Clock, refine_part
+    from sparseart.clock import StageClock
+    from sparseart.refine.api import RefineOptions, refine_part
 
     _, scene, result = small_run
     part, seed = result.joints[0]
-    clock = _Clock()
+    clock = StageClock()
     options = RefineOptions(**TINY, per_state=False, cross_static=False, cross_mobile=False, mobility_correction=False)
     outcome = refine_part(result.start_cloud, result.end_cloud, result.labels, part.spec.id, seed, scene, options,
                           clock)
-    ran = {name: did for name, did, _, _ in clock.records}
+    ran = {r.name: r.ran for r in clock.records}
     assert ran == {"refine.build": True, "refine.fit_states": False, "refine.cross_static": False,
                    "refine.cross_mobile": False, "refine.mobility_correction": False, "refine.accept": True}
-    assert all(why.startswith(f"part {part.spec.id}: ") for _, _, _, why in clock.records)
+    assert all(r.why.startswith(f"part {part.spec.id}: ") for r in clock.records)
     assert not outcome.accepted and "seed joint is kept" in outcome.diagnostics["why"]
     np.testing.assert_array_equal(outcome.joint.axis, seed.axis)
     assert outcome.joint.distance == seed.distance and outcome.joint.angle == seed.angle

@@ -86,10 +86,11 @@ def fake(server):
 
 
 def _clouds(scene):
+    from sparseart.lift.labels import build_labelled_cloud
     from sparseart.lift.scene_lift import lift_scene
 
     lifted = lift_scene(scene)
-    return lifted.start, lifted.end
+    return tuple(build_labelled_cloud(state, scene.frames(state), lifted.pointmaps[state]) for state in ("start", "end"))
 
 
 @pytest.fixture(scope="module")

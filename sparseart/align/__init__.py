@@ -1,3 +1,23 @@
 """Registration of unposed scenes: views of one state to each other, then the end state to the start
-state. Features (SIFT, learned matchers) lifted to 3D, robust Sim(3)/SE(3) RANSAC, geometric
-fallbacks, and the static-part polish."""
+state, then (after labelling) a polish on the static part.
+
+    features.py   SIFT/RootSIFT keypoints and matches lifted to 3D (FeatureMatches)
+    matchers.py   learned matchers (XFeat + LighterGlue, XFeat MNN, LightGlue pipeline) behind one interface
+    lightglue.py  the end-to-end LightGlue-ONNX pipeline export
+    ransac.py     robust Sim(3)/SE(3) from 3D matches (RANSAC + Umeyama)
+    geometric.py  featureless fallback for views (FPFH/PCA + ICP, free-space check)
+    views.py      views of one state -> its first view
+    states.py     end state -> start state, plus candidate part motions
+    static.py     ICP of the labelled static part (polish, or registration when features failed)
+    scene.py      align_scene(): what the pipeline calls after the lift
+"""
+from sparseart.align.ransac import AlignmentError, Similarity, ransac_similarity, umeyama
+from sparseart.align.scene import AlignedScene, align_scene
+from sparseart.align.states import MotionCandidate, StateAlignment, align_states
+from sparseart.align.views import register_views
+from sparseart.align.features import FeatureMatches, match_features
+from sparseart.geometry.clouds import transform_pointmap
+
+__all__ = ["AlignedScene", "AlignmentError", "FeatureMatches", "MotionCandidate", "Similarity", "StateAlignment",
+           "align_scene", "align_states", "match_features", "ransac_similarity", "register_views",
+           "transform_pointmap", "umeyama"]

@@ -1,32 +1,19 @@
-"""Alignment of unposed scenes: views of one state into one frame, then end state into start frame.
-
-Features (:mod:`sparseart.align.features`) -> 3D matches through the pointmaps -> vectorised RANSAC
-of a similarity (or rigid) transform -> least-squares (Umeyama) refit on the inliers. Views of one
-state are chained through the best-connected view and polished with point-to-plane ICP; between
-states the dominant transform is the static part and the outliers are searched for rigid motions
-(the moving parts' candidates). Degenerate input ends in :class:`AlignmentError` or a warning.
-"""
+"""Robust similarity (or rigid) transforms from 3D matches: vectorised RANSAC, then a weighted
+least-squares (Umeyama) refit on the inliers; degenerate or too-small match sets end in
+:class:`AlignmentError`. Used by view registration (:mod:`sparseart.align.views`) and state
+alignment (:mod:`sparseart.align.states`)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
 
-from sparseart.align.features import (PLANAR_FRACTION, THRESHOLD_FRACTION, AlignmentError, FeatureMatches,
-                             geometry_edge, icp_polish, match_features, match_view_features, scene_size,
-                             spread, valid_points, view_features)
-from sparseart.types import Frame, Pointmap
-
-__all__ = ["AlignmentError", "FeatureMatches", "MotionCandidate", "Similarity", "StateAlignment",
-           "align_states", "match_features", "ransac_similarity", "register_views",
-           "transform_pointmap", "umeyama"]
+from sparseart.align.features import THRESHOLD_FRACTION, AlignmentError, FeatureMatches
+from sparseart.geometry.clouds import spread
 
 MIN_MATCHES = 12                 # fewer matches after ratio test and lifting -> error
 MIN_CONSENSUS_FRACTION = 0.15    # RANSAC consensus below max(6, 15 % of matches) -> error
 DEGENERATE_FRACTION = 0.04       # inlier RMS spread along the 2nd principal axis / scene size
-AMBIGUOUS_RATIO = 0.70           # 2nd motion support / static support above this -> warning
-SCALE_RANGE = (0.2, 5.0)         # with_scale=True: scale outside -> warning
-LOOP_DEG, LOOP_FRACTION = 5.0, 0.05   # loop-closure disagreement that is warned
 
 
 @dataclass
@@ -57,31 +44,6 @@ class Similarity:
         block = np.asarray(matrix, dtype=np.float64)[:3, :3]
         scale = float(np.cbrt(np.linalg.det(block)))
         return Similarity(scale, block / scale, np.asarray(matrix, dtype=np.float64)[:3, 3].copy())
-
-
-@dataclass
-class MotionCandidate:
-    """A rigid motion among the outliers of the dominant similarity.
-
-    transform: (4, 4) float64 start -> end motion of the points that follow it, in frame a.
-    support: number of inlier matches; points: (support, 3) their start-frame (frame a) positions.
-    """
-
-    transform: np.ndarray
-    support: int
-    points: np.ndarray
-
-
-@dataclass
-class StateAlignment:
-    """End state (frame b) -> start state (frame a); inliers are the static part."""
-
-    transform: Similarity
-    matches: FeatureMatches
-    inliers: np.ndarray
-    rmse: float
-    candidates: list[MotionCandidate] = field(default_factory=list)
-    warnings: list[str] = field(default_factory=list)
 
 
 def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool,
@@ -197,7 +159,7 @@ def ransac_similarity(source: np.ndarray, target: np.ndarray, *, with_scale: boo
     return model, inliers
 
 
-def _describe(names_a: list[str], names_b: list[str]) -> str:
+def describe_pairs(names_a: list[str], names_b: list[str]) -> str:
     return f"{', '.join(names_a)} vs {', '.join(names_b)}"
 
 
@@ -207,7 +169,7 @@ def fit_matches(matches: FeatureMatches, *, with_scale: bool, size: float, seed:
 
     Returns (model, inliers, inlier rmse in frame-a units). O(2000 K).
     """
-    where = _describe(names_a, names_b)
+    where = describe_pairs(names_a, names_b)
     k = len(matches)
     if k < MIN_MATCHES:
         raise AlignmentError(
@@ -231,222 +193,3 @@ def fit_matches(matches: FeatureMatches, *, with_scale: bool, size: float, seed:
     return model, inliers, rmse
 
 
-def transform_pointmap(pointmap: Pointmap, transform: np.ndarray) -> Pointmap:
-    """A copy of ``pointmap`` with its points mapped by a (4, 4) transform (NaN stays NaN)."""
-    points = pointmap.points @ transform[:3, :3].T + transform[:3, 3]
-    return replace(pointmap, points=points)
-
-
-def _widest_tree(n: int, weight: np.ndarray) -> np.ndarray:
-    """Parent of every node in a maximum spanning tree grown from node 0 (Prim); -1 = unreached.
-
-    The tree path from 0 maximises the weakest link (bottleneck) on the way. O(n^2)."""
-    parent = np.full(n, -1)
-    best = np.where(weight[0] > 0, weight[0], -1.0)
-    best[0] = -1.0
-    origin = np.zeros(n, int)
-    done = np.zeros(n, bool)
-    done[0] = True
-    while True:
-        candidate = np.where(done, -1.0, best)
-        j = int(np.argmax(candidate))
-        if candidate[j] <= 0:
-            return parent
-        done[j], parent[j] = True, origin[j]
-        better = (~done) & (weight[j] > best)
-        best[better], origin[better] = weight[j][better], j
-
-
-def _angle_deg(rotation: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0))))
-
-
-def register_views(frames: list[Frame], pointmaps: list[Pointmap], *, with_scale: bool, seed: int = 0,
-                   geometry_fallback: bool = True, matcher=None) -> tuple[list[np.ndarray], list[str]]:
-    """Bring the views of one state (one rigid scene) into the camera frame of view 0.
-
-    Every pair of views is matched and fitted (:func:`fit_matches`); each view is reached from
-    view 0 through the maximum spanning tree of the inlier counts (so a view that only overlaps
-    view 1 is chained through it). When features leave a view unreached and the clouds are metric
-    (``with_scale=False``) with K, pairs without a feature fit get a geometric registration
-    (:func:`~sparseart.align.features.geometry_edge`, with a warning naming the view; never for
-    planar clouds); feature edges always rank above geometric ones. Edges off the tree are checked against it (loop
-    closure) and disagreements warned. With ``with_scale=False`` each view is then polished by
-    point-to-plane ICP against the views already placed. O(V^2 (M^2 + 2000 K + N log N)).
-
-    Args:
-        frames, pointmaps: the V views; pointmaps in each view's OWN camera frame.
-        with_scale: per-view scale (relative-scale reconstructions); folded into the transforms.
-        geometry_fallback: allow the geometric registration of pairs without feature matches.
-        matcher: a pair matcher (``match(frame_a, pointmap_a, frame_b, pointmap_b) ->
-            FeatureMatches``, e.g. :class:`~sparseart.align.lightglue.LightGlueMatcher`) used
-            instead of SIFT; None = SIFT.
-
-    Returns:
-        ((4, 4) view_i camera frame -> view_0 camera frame for every view, identity first; warnings).
-
-    Raises:
-        AlignmentError: a view matches no other view (naming its image and the reasons).
-    """
-    if len(frames) != len(pointmaps) or not frames:
-        raise ValueError("register_views needs one pointmap per frame")
-    n = len(frames)
-    if n == 1:
-        return [np.eye(4)], []
-    clouds = [valid_points(p) for p in pointmaps]
-    size = scene_size(np.concatenate(clouds))
-    features = None if matcher is not None else [view_features(f, p) for f, p in zip(frames, pointmaps)]
-    names = [str(f.rgb_path) for f in frames]
-    weight = np.zeros((n, n))
-    pair_model: dict[tuple[int, int], Similarity] = {}
-    how: dict[tuple[int, int], str] = {}
-    reasons: dict[int, list[str]] = {i: [] for i in range(n)}
-
-    def add(i: int, j: int, model: Similarity, w: float, kind: str) -> None:
-        weight[i, j] = weight[j, i] = w
-        pair_model[(i, j)], pair_model[(j, i)] = model, model.inverse()   # j -> i, i -> j
-        how[(i, j)] = how[(j, i)] = kind
-
-    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
-    for i, j in pairs:
-        matches = (matcher.match(frames[i], pointmaps[i], frames[j], pointmaps[j]) if matcher is not None
-                   else match_view_features(features[i], features[j]))
-        try:
-            model, inliers, _ = fit_matches(matches, with_scale=with_scale, size=size, seed=seed,
-                                            names_a=[names[i]], names_b=[names[j]])
-        except AlignmentError as error:
-            reasons[i].append(str(error))
-            reasons[j].append(str(error))
-            continue
-        add(i, j, model, 1.0 + float(inliers.sum()), f"{int(inliers.sum())} feature inliers")
-    parent = _widest_tree(n, weight)
-    if (geometry_fallback and not with_scale and np.any(parent[1:] < 0)
-            and all(f.camera is not None for f in frames)):
-        for i, j in pairs:
-            if weight[i, j] == 0:
-                edge = geometry_edge(j, i, frames, pointmaps, clouds, size, seed)
-                if edge is None:
-                    why = "geometric registration rejected (planar, little overlap or sees through)"
-                    reasons[i].append(why)
-                    reasons[j].append(why)
-                else:
-                    add(i, j, Similarity.from_matrix(edge[0]), edge[2], f"geometry only, {edge[1]:.0%} overlap")
-        parent = _widest_tree(n, weight)
-    warnings: list[str] = []
-    transforms: list[np.ndarray | None] = [np.eye(4)] + [None] * (n - 1)
-    order = [0]
-    while len(order) < n:
-        grown = [j for j in range(n) if transforms[j] is None and parent[j] >= 0
-                 and transforms[parent[j]] is not None]
-        if not grown:
-            missing = next(j for j in range(n) if transforms[j] is None)
-            why = "; ".join(dict.fromkeys(r.split(": ", 1)[-1] for r in reasons[missing])) or "no matches"
-            raise AlignmentError(f"{frames[missing].rgb_path}: view could not be registered to any "
-                                 f"other view of its state ({why})")
-        for j in grown:
-            p = int(parent[j])
-            transforms[j] = transforms[p] @ pair_model[(p, j)].matrix()
-            if p != 0 or not how[(p, j)].endswith("feature inliers"):
-                warnings.append(f"{frames[j].rgb_path}: registered to {frames[p].rgb_path} by "
-                                f"{how[(p, j)]}")
-            order.append(j)
-    for i, j in pairs:   # loop closure: edges off the tree must agree with it
-        if weight[i, j] > 0 and parent[j] != i and parent[i] != j:
-            relative = np.linalg.inv(transforms[i]) @ transforms[j] @ np.linalg.inv(pair_model[(i, j)].matrix())
-            angle = _angle_deg(relative[:3, :3] / np.cbrt(np.linalg.det(relative[:3, :3])))
-            if angle > LOOP_DEG or np.linalg.norm(relative[:3, 3]) > LOOP_FRACTION * size:
-                warnings.append(f"{frames[j].rgb_path}: its direct registration to {frames[i].rgb_path} "
-                                f"({how[(i, j)]}) disagrees with the chain by {angle:.1f} deg")
-    if not with_scale:
-        placed = [clouds[0]]
-        for j in order[1:]:
-            target = np.concatenate(placed)
-            if spread(target)[2] < PLANAR_FRACTION * size or spread(clouds[j])[2] < PLANAR_FRACTION * size:
-                warnings.append(f"{frames[j].rgb_path}: ICP polish on a planar cloud may slide "
-                                f"along the plane")
-            polished = icp_polish(clouds[j], target, transforms[j], size)
-            if polished is None:
-                warnings.append(f"{frames[j].rgb_path}: ICP polish did not improve the overlap; "
-                                f"kept the registration as it was")
-            else:
-                transforms[j] = polished
-            placed.append(clouds[j] @ transforms[j][:3, :3].T + transforms[j][:3, 3])
-    return [np.asarray(t, dtype=np.float64) for t in transforms], warnings
-
-
-def _motion_candidates(points_a: np.ndarray, points_b_in_a: np.ndarray, total: int, size: float,
-                       seed: int, max_candidates: int) -> list[MotionCandidate]:
-    """Sequential RANSAC of rigid motions (start -> end, frame a) on the static outliers."""
-    min_support = max(8, int(np.ceil(0.03 * total)))
-    remaining = np.arange(points_a.shape[0])
-    out: list[MotionCandidate] = []
-    for attempt in range(4 * max_candidates):
-        if len(out) >= max_candidates or remaining.size < min_support:
-            break
-        try:
-            model, inliers = ransac_similarity(points_a[remaining], points_b_in_a[remaining],
-                                               with_scale=False, threshold=THRESHOLD_FRACTION * size,
-                                               seed=seed + 1 + attempt, min_inliers=min_support)
-        except AlignmentError:
-            break
-        chosen = remaining[inliers]
-        remaining = remaining[~inliers]
-        if spread(points_a[chosen])[1] >= DEGENERATE_FRACTION * size:   # skip collinear sets
-            out.append(MotionCandidate(model.matrix(), int(chosen.size), points_a[chosen].copy()))
-    return sorted(out, key=lambda c: -c.support)
-
-
-def align_states(start_frames: list[Frame], start_pointmaps: list[Pointmap], end_frames: list[Frame],
-                 end_pointmaps: list[Pointmap], *, with_scale: bool, seed: int = 0,
-                 max_candidates: int = 6, matcher=None) -> StateAlignment:
-    """Map the end state into the start state's frame through the static part.
-
-    Every start view is matched against every end view and the matches are pooled; the dominant
-    RANSAC transform (similarity when ``with_scale``, e.g. separate relative-scale
-    reconstructions; rigid for metric depth) is the static part. Its outliers, mapped into frame a,
-    are searched for rigid motions (sequential RANSAC, support >= max(8, 3 % of matches)).
-    O(S E (M^2 + 2000 K)).
-
-    Args:
-        start_pointmaps / end_pointmaps: in each state's own reference frame (its view 0).
-        matcher: a pair matcher used instead of SIFT (see :func:`register_views`); None = SIFT.
-
-    Raises:
-        AlignmentError: too few matches, no consensus, or degenerate inliers (naming the images).
-    """
-    names_a = [str(f.rgb_path) for f in start_frames]
-    names_b = [str(f.rgb_path) for f in end_frames]
-    if matcher is None:
-        fa = [view_features(f, p) for f, p in zip(start_frames, start_pointmaps)]
-        fb = [view_features(f, p) for f, p in zip(end_frames, end_pointmaps)]
-
-        def match(i: int, j: int) -> FeatureMatches:
-            return match_view_features(fa[i], fb[j])
-    else:
-        def match(i: int, j: int) -> FeatureMatches:
-            return matcher.match(start_frames[i], start_pointmaps[i], end_frames[j], end_pointmaps[j])
-    views = [(i, j) for i in range(len(start_frames)) for j in range(len(end_frames))]
-    parts = [match(i, j) for i, j in views]
-    views_a, views_b = [i for i, _ in views], [j for _, j in views]
-    # Keypoints per image, each image counted once (a pair reports (K_a, K_b)).
-    per_a, per_b = [0] * len(start_frames), [0] * len(end_frames)
-    for (i, j), part in zip(views, parts):
-        per_a[i], per_b[j] = part.n_keypoints
-    n_keypoints = (sum(per_a), sum(per_b))
-    matches = FeatureMatches.concatenate(parts, views_a, views_b, n_keypoints)
-    size = scene_size(np.concatenate([valid_points(p) for p in start_pointmaps]))
-    model, inliers, rmse = fit_matches(matches, with_scale=with_scale, size=size, seed=seed,
-                                       names_a=names_a, names_b=names_b)
-    warnings: list[str] = []
-    where = _describe(names_a, names_b)
-    if with_scale and not SCALE_RANGE[0] <= model.scale <= SCALE_RANGE[1]:
-        warnings.append(f"{where}: end-to-start scale {model.scale:.3g} is outside "
-                        f"[{SCALE_RANGE[0]}, {SCALE_RANGE[1]}]; check the reconstructions")
-    outliers = ~inliers
-    candidates = _motion_candidates(matches.points_a[outliers], model.apply(matches.points_b[outliers]),
-                                    len(matches), size, seed, max_candidates)
-    static = int(inliers.sum())
-    if candidates and candidates[0].support > AMBIGUOUS_RATIO * static:
-        warnings.append(f"{where}: static part is ambiguous: a second motion has {candidates[0].support} "
-                        f"matches vs {static} for the dominant one (the moving part may have won)")
-    return StateAlignment(model, matches, inliers, rmse, candidates, warnings)

@@ -31,7 +31,8 @@ QUICK_OBJECTS = ("toaster_press_103486", "stapler_press_102990", "door_9168")
 FLYING_FRACTION = 0.5  # fraction of depth-edge pixels made flying in the noisy-depth settings
 CONFIG_FIELDS = ("views", "posed", "depth_noise", "flying_pixels", "pose_noise_deg", "pose_noise_m", "refine",
                  "scramble_masks", "use_masks", "segmenter")
-STAGES = ("read", "segment", "lift", "lift.register_views", "lift.align_states", "align", "label", "fit", "refine",
+STAGES = ("read", "segment", "lift", "align", "align.register_views", "align.align_states", "align.static", "label",
+          "fit", "refine",
           "peer_segment", "peer_register")
 
 

@@ -5,9 +5,12 @@ is in that unit, so callers stay unit-free by expressing thresholds as multiples
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sparseart.geometry.transforms import apply_transform
 from sparseart.types import Pointmap
 
 
@@ -60,3 +63,8 @@ def spread(points: np.ndarray) -> np.ndarray:
 def valid_points(pointmap: Pointmap) -> np.ndarray:
     """(K, 3) float64 points of a pointmap's valid, finite pixels, in the pointmap's frame."""
     return pointmap.points[pointmap.valid & np.isfinite(pointmap.points).all(axis=1)]
+
+
+def transform_pointmap(pointmap: Pointmap, transform: np.ndarray) -> Pointmap:
+    """A copy of ``pointmap`` with its points mapped by a (4, 4) transform (NaN stays NaN). O(H W)."""
+    return replace(pointmap, points=apply_transform(transform, pointmap.points))

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sparseart.geometry.transforms import apply_transform, make_transform, rotation_angle
+from sparseart.geometry.clouds import median_spacing
 from sparseart.geometry.sampling import random_subset
 
 
@@ -37,15 +38,6 @@ class RigidRegistration:
     inlier_fraction: float
     correspondences: np.ndarray
     diagnostics: dict = field(default_factory=dict)
-
-
-def _spacing(points: np.ndarray) -> float:
-    """Median nearest-neighbour distance of a set (frame units); O(N log N)."""
-    if points.shape[0] < 2:
-        return 1.0
-    distances, _ = cKDTree(points).query(points, k=2)
-    spacing = float(np.median(distances[:, 1]))
-    return spacing if spacing > 0 else float(np.mean(distances[:, 1])) or 1e-3
 
 
 def _pca_frame(points: np.ndarray) -> np.ndarray:
@@ -101,8 +93,15 @@ def _fpfh_hypothesis(source_cloud, target_cloud, voxel: float, seed: int) -> np.
     return transform if np.all(np.isfinite(transform)) and len(result.correspondence_set) >= 3 else None
 
 
-def _icp(source_cloud, target_cloud, init: np.ndarray, distances: tuple[float, ...]) -> np.ndarray:
-    """Coarse-to-fine point-to-plane ICP with a Tukey kernel (open3d); falls back to point-to-point."""
+def tukey_icp(source_cloud, target_cloud, init: np.ndarray, distances: tuple[float, ...], *,
+              tolerance: float = 1e-7, iterations: int = 40, strict: bool = True) -> np.ndarray | None:
+    """THE coarse-to-fine ICP of the project: point-to-plane with a Tukey kernel (open3d) at each of
+    ``distances`` in turn (point-to-point when the target has no normals).
+
+    source_cloud / target_cloud: open3d point clouds (one frame, one unit); init: (4, 4) float64.
+    A non-finite step returns None with ``strict`` and is skipped otherwise. O(I N log M) for I
+    iterations over N source and M target points.
+    """
     from sparseart.geometry.o3d import open3d
     o3d = open3d()
 
@@ -114,10 +113,12 @@ def _icp(source_cloud, target_cloud, init: np.ndarray, distances: tuple[float, .
         else:
             estimation = reg.TransformationEstimationPointToPoint(False)
         result = reg.registration_icp(source_cloud, target_cloud, distance, transform, estimation,
-                                      reg.ICPConvergenceCriteria(1e-7, 1e-7, 40))
+                                      reg.ICPConvergenceCriteria(tolerance, tolerance, iterations))
         candidate = np.asarray(result.transformation, dtype=np.float64)
         if np.all(np.isfinite(candidate)):
             transform = candidate
+        elif strict:
+            return None
     return transform
 
 
@@ -135,7 +136,7 @@ def _score(source: np.ndarray, target: np.ndarray, target_tree: cKDTree, transfo
 
 def _refine(name, start, source_cloud, target_cloud, schedule, source_sub, target_sub, target_tree,
             inlier_distance) -> dict:
-    refined = _icp(source_cloud, target_cloud, start, schedule)
+    refined = tukey_icp(source_cloud, target_cloud, start, schedule, strict=False)
     fraction, rmse = _score(source_sub, target_sub, target_tree, refined, inlier_distance)
     return {"name": name, "transform": refined, "inlier_fraction": fraction, "rmse": rmse,
             "angle_deg": float(np.degrees(rotation_angle(refined[:3, :3])))}
@@ -180,7 +181,7 @@ def register_rigid(
     source_n, target_n = (source - centre) / scale, (target - centre) / scale
     source_sub = source_n[random_subset(source_n.shape[0], max_points, rng)]
     target_sub = target_n[random_subset(target_n.shape[0], max_points, rng)]
-    resolution = max(_spacing(source_sub), _spacing(target_sub))
+    resolution = max(median_spacing(source_sub), median_spacing(target_sub))
     inlier_distance = inlier_factor * resolution
     target_tree = cKDTree(target_sub)
     source_cloud = _o3d_cloud(source_sub)
@@ -259,3 +260,27 @@ def _colored_polish(source_n, target_n, source_colors, target_colors, transform,
         return transform
     new_fraction, _ = _score(source_sub, target_sub, target_tree, polished, inlier_distance)
     return polished if new_fraction >= fraction else transform
+
+
+def icp_polish(source: np.ndarray, target: np.ndarray, init: np.ndarray, distance: float) -> np.ndarray | None:
+    """Polish a registration of ``source`` onto ``target`` ((N, 3), (M, 3) float64, one frame and
+    unit) with :func:`tukey_icp` at 4, 2 and 1 times ``distance`` (voxel 1/60 of 50 x distance).
+
+    Returns the polished (4, 4) source -> target, or None when it does not raise the share of points
+    within ``distance / 2`` (or the clouds are too small or the result is not finite). O(N log N).
+    """
+    from sparseart.geometry.o3d import open3d
+    o3d = open3d()
+    reg = o3d.pipelines.registration
+    voxel = distance / (60.0 * 0.02)
+    src = _o3d_cloud(source).voxel_down_sample(voxel)
+    tgt = _o3d_cloud(target).voxel_down_sample(voxel)
+    if len(src.points) < 30 or len(tgt.points) < 30:
+        return None
+    tgt.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=4 * voxel, max_nn=30))
+    transform = tukey_icp(src, tgt, init, (4 * distance, 2 * distance, distance), tolerance=1e-8, iterations=50)
+    if transform is None:
+        return None
+    before = reg.evaluate_registration(src, tgt, distance / 2, init)
+    after = reg.evaluate_registration(src, tgt, distance / 2, transform)
+    return transform if after.fitness >= before.fitness else None

@@ -238,3 +238,12 @@ def transform_from_revolute(axis: np.ndarray, origin: np.ndarray, angle: float) 
 def transform_from_prismatic(axis: np.ndarray, distance: float) -> np.ndarray:
     """(4, 4) transform of ``x -> x + distance * axis``."""
     return make_transform(np.eye(3), unit(axis) * float(distance))
+
+
+def axis_angle_deg(axis_a: np.ndarray, axis_b: np.ndarray) -> float:
+    """Angle in degrees, in [0, 90], between two lines of direction ``axis_a`` and ``axis_b`` ((3,),
+    any non-zero length; the sign of a direction does not matter). atan2 of the cross and dot
+    products: accurate at small angles, where arccos of the dot product loses half its digits."""
+    a = np.asarray(axis_a, dtype=np.float64)
+    b = np.asarray(axis_b, dtype=np.float64)
+    return float(np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b)), abs(float(a @ b)))))

@@ -17,13 +17,15 @@ class PartLabeler(Protocol):
     masks). It returns :class:`PartLabels`: the parts (part 0 = static base), the part of every
     point of each state (-1 = unassigned), the segment -> part maps it decided, optionally a joint
     type per movable part (``PartSpec.joint_type``; the fitter then skips classification) and
-    optionally a start->end rigid transform per movable part as evidence.
+    optionally a start->end rigid transform per movable part as evidence. ``motion_hints`` are
+    (4, 4) start->end rigid motions (scene frame) that alignment found among the matches the
+    static part did not explain: candidate part motions a labeler may try (or ignore).
     """
 
     name: str
 
     def label(self, start: LabelledCloud, end: LabelledCloud, scene: Scene | None = None,
-              aligned: bool = True) -> PartLabels:
+              aligned: bool = True, motion_hints: list[np.ndarray] | None = None) -> PartLabels:
         ...
 
 

@@ -1,6 +1,8 @@
 """A labeler that returns what it is told: the sanctioned test double."""
 from __future__ import annotations
 
+import numpy as np
+
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 from .base import labels_from_segment_maps
 
@@ -33,7 +35,7 @@ class MockLabeler:
         return mapping
 
     def label(self, start: LabelledCloud, end: LabelledCloud, scene: Scene | None = None,
-              aligned: bool = True) -> PartLabels:
+              aligned: bool = True, motion_hints: list[np.ndarray] | None = None) -> PartLabels:
         part_ids = sorted(set(self.mask_to_part.values()) |
                           {p for table in self.per_image.values() for p in table.values()})
         parts = [PartSpec(id=p, role="static" if p == 0 else "movable",

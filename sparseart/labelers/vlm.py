@@ -126,7 +126,7 @@ class VlmLabeler:
         return f"VlmLabeler({self.client!r})"
 
     def label(self, start: LabelledCloud, end: LabelledCloud, scene: Scene | None = None,
-              aligned: bool = True) -> PartLabels:
+              aligned: bool = True, motion_hints: list[np.ndarray] | None = None) -> PartLabels:
         """Label parts from the VLM's answers, or from the fallback labeler with a warning.
 
         O(P) requests for P pairs (3 per pair, plus re-asks), then O(N log N) KD-tree voting."""

@@ -23,11 +23,11 @@ numbers.
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..clock import StageClock
 from ..types import JointEstimate, LabelledCloud, PartLabels, PartResult, Scene
 from . import stages
 from .gaussians import gaussians_from_points, initial_mobility
@@ -86,24 +86,6 @@ class RefineOptions:
         if self.long_side < 16:
             raise ValueError(f"refine option long_side must be >= 16 px, got {self.long_side}")
         return self
-
-
-class _Clock:
-    """Minimal stand-in for the pipeline's StageClock (stage/skip/records)."""
-
-    def __init__(self) -> None:
-        self.records: list = []
-
-    @contextmanager
-    def stage(self, name: str, why: str):
-        began = time.perf_counter()
-        try:
-            yield
-        finally:
-            self.records.append((name, True, time.perf_counter() - began, why))
-
-    def skip(self, name: str, why: str) -> None:
-        self.records.append((name, False, 0.0, why))
 
 
 class _PartClock:
@@ -194,7 +176,7 @@ def refine_part(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, pa
     import torch
 
     options = (options or RefineOptions()).validate()
-    clock = _PartClock(clock or _Clock(), part_id)
+    clock = _PartClock(clock or StageClock(), part_id)
     rng = np.random.default_rng(options.seed)
     modelled = {0, part_id}
     previous_threads = torch.get_num_threads()
@@ -269,7 +251,7 @@ def sigma_moves(before: dict, after: dict, uncertainty: dict[str, float]) -> dic
     Both dicts: type, axis (3,), origin (3,), angle (rad) | distance (scene units). Axes of
     opposite sign are compared as one line (the state's sign follows). Components without a
     positive sigma are left out. O(1)."""
-    from sparseart.bench.metrics import axis_angle_error_deg
+    from ..geometry.transforms import axis_angle_deg
 
     axis_b = np.asarray(before["axis"], np.float64)
     axis_a = np.asarray(after["axis"], np.float64)
@@ -282,7 +264,7 @@ def sigma_moves(before: dict, after: dict, uncertainty: dict[str, float]) -> dic
         if sigma > 0 and np.isfinite(sigma):
             moves[name] = float(amount) / sigma
 
-    add("axis", axis_angle_error_deg(axis_a, axis_b), "axis_deg")
+    add("axis", axis_angle_deg(axis_a, axis_b), "axis_deg")
     if before["type"] == "revolute":
         offset = np.asarray(before["origin"], np.float64) - np.asarray(after["origin"], np.float64)
         add("origin", np.linalg.norm(offset - (offset @ axis_a) * axis_a), "origin")
@@ -356,6 +338,16 @@ def budget_ratio(budget: float | None, elapsed: float, parts_left: int, full_cos
         return 1.0
     share = max(budget - elapsed, 0.0) / parts_left
     return float(min(1.0, max(0.05, share / full_cost)))
+
+
+def with_iterations(options: RefineOptions, cross_mobile_iters: int) -> RefineOptions:
+    """A copy of ``options`` whose ``cross_mobile_iters`` is the given count and every other
+    ``*_iters`` count scaled by the same ratio (``--refine-iters``; 0 switches every stage off)."""
+    from dataclasses import replace
+
+    ratio = cross_mobile_iters / options.cross_mobile_iters if options.cross_mobile_iters else 0.0
+    scaled = {name: int(round(getattr(options, name) * ratio)) for name in ITERATION_FIELDS}
+    return replace(options, **{**scaled, "cross_mobile_iters": int(cross_mobile_iters)})
 
 
 def scaled_iterations(options: RefineOptions, ratio: float) -> RefineOptions:
