@@ -106,6 +106,8 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--quick", action="store_true", help="about a minute: 3 small objects, default setting")
     bench.add_argument("--seeds", type=int, nargs="+", default=[0], help="render/run seeds (default 0)")
     bench.add_argument("--no-peer", action="store_true", help="skip the ICP baseline")
+    bench.add_argument("--settings", nargs="+", default=None, metavar="NAME",
+                       help="run only these settings (shell patterns, e.g. default 'realistic*' 'knob-*')")
     bench.add_argument("--stability", action="store_true",
                        help="the stiff/extreme-case stability report of the joint fitter instead")
     return parser
@@ -239,7 +241,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     if args.quick:
         small = [o for o in objects if o.name in QUICK_OBJECTS]
         objects = small or objects[:3]
-    result = run_bench(objects, args.out, seeds=args.seeds, quick=args.quick, peer=not args.no_peer)
+    result = run_bench(objects, args.out, seeds=args.seeds, quick=args.quick, peer=not args.no_peer,
+                       names=args.settings)
     print(report_text(result))
     print(f"wrote {args.out}/table.txt, rows.csv/json, summary.csv/json, error_vs_time.png, error_vs_factor.png")
     return 0 if result.rows else 1

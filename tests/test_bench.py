@@ -31,15 +31,39 @@ def test_grid_is_one_factor_at_a_time():
     groups = {"views": {"views"}, "posed": {"posed"}, "depth": {"depth_noise", "flying_pixels"},
               "pose": {"pose_noise_deg", "pose_noise_m"}, "refine": {"refine"},
               "masks": {"scramble_masks"}, "no_masks": {"use_masks"}, "segmenter": {"segmenter"}}
+    realistic = next(s for s in settings if s.name == "realistic")
+    assert not realistic.posed and realistic.views == 3 and min(realistic.realism.levels().values()) == 1.0
     for setting in settings[1:]:
+        assert setting.seed == 3
+        if not setting.realism.is_clean:   # realistic renders: compared with "realistic" / one knob alone
+            if setting.name.startswith("knob-"):
+                knob = setting.name[len("knob-"):]
+                assert {k for k, v in setting.realism.levels().items() if v} == {knob}
+                assert setting.realism.levels()[knob] == 1.0 and setting.posed == (knob == "pose_noise")
+            else:
+                changed = {k for k, v in vars(setting).items() if k != "name" and v != getattr(realistic, k)}
+                assert changed <= {"views"} or changed <= {"refine"}, (setting.name, changed)
+            continue
         changed = {k for k, v in vars(setting).items() if k != "name" and v != getattr(default, k)}
         assert any(changed and changed <= group for group in groups.values()), (setting.name, changed)
-        assert setting.seed == 3
     names = [s.name for s in settings]
     assert {"views1", "views2", "views4", "unposed", "depth1%+fly", "depth3%+fly", "pose0.5deg0.5cm",
             "masks-scrambled", "no-masks", "builtin-segmenter"} <= set(names)
     assert ("refine" in names) != bool(skipped)  # either run or skipped with a reason
     assert grid_settings(quick=True)[0] == [BenchSetting(name="default")]
+    assert {"realistic", "realistic-1view", "knob-jpeg", "knob-occluder"} <= set(names)
+
+
+def test_settings_are_selected_by_pattern():
+    from sparseart.bench.grid import select_settings
+    from sparseart.types import SceneError
+
+    settings, _ = grid_settings()
+    assert [s.name for s in select_settings(settings, ["default", "realistic*"])][:3] == [
+        "default", "realistic", "realistic-1view"]
+    assert select_settings(settings, None) == settings
+    with pytest.raises(SceneError, match="nothing-like-this"):
+        select_settings(settings, ["nothing-like-this"])
 
 
 def test_peer_recovers_revolute_and_prismatic_parts():

@@ -21,16 +21,18 @@ import time
 from dataclasses import dataclass, replace
 from datetime import date
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any, TextIO
 
 from sparseart.bench import metrics
 from sparseart.bench.objects import METHOD_PEER, METHOD_SPARSEART, BenchSetting, evaluate_object, refine_available
 from sparseart.io.scene import write_bytes_atomic, write_json_atomic
+from sparseart.types import SceneError
 
 QUICK_OBJECTS = ("toaster_press_103486", "stapler_press_102990", "door_9168")
 FLYING_FRACTION = 0.5  # fraction of depth-edge pixels made flying in the noisy-depth settings
 CONFIG_FIELDS = ("views", "posed", "depth_noise", "flying_pixels", "pose_noise_deg", "pose_noise_m", "refine",
-                 "scramble_masks", "use_masks", "segmenter")
+                 "scramble_masks", "use_masks", "segmenter", "realism", "matcher")
 STAGES = ("read", "segment", "lift", "align", "align.register_views", "align.align_states", "align.static", "label",
           "fit", "refine",
           "peer_segment", "peer_register")
@@ -44,15 +46,22 @@ def default_partnet_dir() -> Path:
 def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting], list[str]]:
     """The one-factor-at-a-time grid: (settings, skipped-setting reasons).
 
-    default: 3 views, posed, no depth noise, no pose noise, no refinement; then views 1 / 2 / 4,
-    unposed, depth noise 1 % and 3 % (each with flying pixels on half the depth-edge pixels),
-    pose noise 0.5 deg + 0.5 cm (object units), mask ids scrambled per image, no masks (motion
-    split), the built-in image segmenter instead of the masks, refinement (only when ``RunOptions.refine`` exists).
+    Clean renders -- default: 3 views, posed, no depth noise, no pose noise, no refinement; then
+    views 1 / 2 / 4, unposed, depth noise 1 % and 3 % (each with flying pixels on half the
+    depth-edge pixels), pose noise 0.5 deg + 0.5 cm (object units), mask ids scrambled per image,
+    no masks (motion split), the built-in image segmenter instead of the masks, refinement.
+    Realistic renders (:mod:`sparseart.datasets.realism`, every knob at level 1, unposed) --
+    ``realistic`` (3 views), ``realistic-1view``, ``realistic+refine``, and ``knob-NAME``: one knob
+    alone at level 1 on the unposed 3-view default (posed for ``knob-pose_noise``, whose error
+    lives in the written poses), so the table shows which error hurts most.
     ``quick``: the default setting only.
     """
+    from sparseart.datasets.realism import KNOBS, PRESETS, Realism
+
     base = BenchSetting(seed=seed, name="default")
     if quick:
         return [base], []
+    realistic = replace(base, posed=False, realism=PRESETS["realistic"], name="realistic")
     settings = [base, *(replace(base, views=v, name=f"views{v}") for v in (1, 2, 4)),
                 replace(base, posed=False, name="unposed"),
                 replace(base, depth_noise=0.01, flying_pixels=FLYING_FRACTION, name="depth1%+fly"),
@@ -60,13 +69,31 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
                 replace(base, pose_noise_deg=0.5, pose_noise_m=0.005, name="pose0.5deg0.5cm"),
                 replace(base, scramble_masks=True, name="masks-scrambled"),
                 replace(base, use_masks=False, name="no-masks"),
-                replace(base, segmenter="builtin", name="builtin-segmenter")]
+                replace(base, segmenter="builtin", name="builtin-segmenter"),
+                realistic, replace(realistic, views=1, name="realistic-1view"),
+                *(replace(base, posed=knob == "pose_noise", realism=Realism(**{knob: 1.0}), name=f"knob-{knob}")
+                  for knob in KNOBS)]
     skipped = []
     if refine_available():
-        settings.append(replace(base, refine=True, name="refine"))
+        settings += [replace(base, refine=True, name="refine"), replace(realistic, refine=True, name="realistic+refine")]
     else:
         skipped.append("refine: sparseart.pipeline.RunOptions has no 'refine' option yet (issue 5); setting skipped")
     return settings, skipped
+
+
+def select_settings(settings: list[BenchSetting], patterns: Sequence[str] | None) -> list[BenchSetting]:
+    """The settings whose name matches any of the shell-style ``patterns`` (all when None); a
+    pattern matching nothing is a SceneError naming the known settings."""
+    import fnmatch
+
+    if not patterns:
+        return settings
+    chosen = [s for s in settings if any(fnmatch.fnmatchcase(s.name, p) for p in patterns)]
+    unknown = [p for p in patterns if not any(fnmatch.fnmatchcase(s.name, p) for s in settings)]
+    if unknown:
+        raise SceneError(f"--settings: {', '.join(unknown)} matches no setting (known: "
+                         f"{', '.join(s.name for s in settings)})")
+    return chosen
 
 
 class Progress:
@@ -233,7 +260,8 @@ def machine_line() -> str:
 
 def run_bench(objects: list[Path], out_dir: Path, seeds: list[int] | None = None, quick: bool = False,
               peer: bool = True, stream: TextIO | None = None,
-              plots: bool = True, settings: list[BenchSetting] | None = None) -> BenchResult:
+              plots: bool = True, settings: list[BenchSetting] | None = None,
+              names: Sequence[str] | None = None) -> BenchResult:
     """The whole benchmark: grid x seeds x objects, outputs written into ``out_dir`` (atomically,
     file by file). ``settings`` overrides the grid (tests). Returns the rows and summaries."""
     out_dir = Path(out_dir)
@@ -242,6 +270,7 @@ def run_bench(objects: list[Path], out_dir: Path, seeds: list[int] | None = None
     all_settings, skipped = [], []
     for seed in seeds:
         grid, skipped = (settings, []) if settings is not None else grid_settings(seed, quick)
+        grid = select_settings(grid, names)
         all_settings.extend(replace(s, seed=seed) for s in grid)
     began = time.perf_counter()
     progress = Progress(len(all_settings) * len(objects), stream)

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from sparseart.bench import metrics
+from sparseart.datasets.realism import CLEAN, Realism
 
 METHOD_SPARSEART = "sparseart"
 METHOD_PEER = "icp_peer"
@@ -45,13 +46,21 @@ class BenchSetting:
     pose_noise_m: float = 0.0
     refine: bool = False
     segmenter: str = "auto"
+    realism: Realism = CLEAN
+    matcher: str | None = None
     name: str = "default"
 
     def render_key(self) -> str:
         """A folder-name-safe key of every field that changes the rendered scene."""
         return (f"v{self.views}_s{self.seed}_{'posed' if self.posed else 'unposed'}"
                 f"{'_scr' if self.scramble_masks else ''}_dn{self.depth_noise:g}_fp{self.flying_pixels:g}"
-                f"_pn{self.pose_noise_deg:g}-{self.pose_noise_m:g}_{self.width}x{self.height}")
+                f"_pn{self.pose_noise_deg:g}-{self.pose_noise_m:g}_{self.width}x{self.height}"
+                + ("" if self.realism.is_clean else "_r" + realism_key(self.realism)))
+
+
+def realism_key(realism: Realism) -> str:
+    """The non-zero knobs of a realism setting as 'knob1-level1.knob2-level2' (sorted, short)."""
+    return ".".join(f"{k}-{v:g}" for k, v in sorted(realism.levels().items()) if v > 0)
 
 
 def refine_available() -> bool:
@@ -81,7 +90,8 @@ def render_cached(object_dir: str | Path, scene_dir: str | Path, setting: BenchS
                               width=setting.width, height=setting.height, posed=setting.posed,
                               scramble_masks=setting.scramble_masks, depth_noise=setting.depth_noise,
                               write_masks=True, flying_pixels=setting.flying_pixels,
-                              pose_noise_deg=setting.pose_noise_deg, pose_noise_m=setting.pose_noise_m)
+                              pose_noise_deg=setting.pose_noise_deg, pose_noise_m=setting.pose_noise_m,
+                              realism=setting.realism)
     seconds = time.perf_counter() - began
     write_json_atomic(stamp_path, stamp)
     return gt, seconds
@@ -105,7 +115,8 @@ def evaluate_object(object_dir: str | Path, work_dir: str | Path, setting: Bench
     object_dir = Path(object_dir)
     scene_dir = Path(work_dir) / f"{object_dir.name}_{setting.render_key()}"
     gt, render_seconds = render_cached(object_dir, scene_dir, setting)
-    options = RunOptions(use_masks=setting.use_masks, seed=setting.seed, segmenter=setting.segmenter)
+    options = RunOptions(use_masks=setting.use_masks, seed=setting.seed, segmenter=setting.segmenter,
+                         matcher=setting.matcher)
     if setting.refine:
         if not hasattr(options, "refine"):
             raise ValueError("bench: setting asks for refinement but RunOptions has no 'refine' option")
@@ -127,7 +138,7 @@ def evaluate_object(object_dir: str | Path, work_dir: str | Path, setting: Bench
         for row in evaluate(outcome, scene, gt):
             row.update(object=object_dir.name, setting=setting.name, method=method, render_seconds=render_seconds,
                        pipeline_seconds=seconds, stage_seconds=stage_seconds, n_predicted=len(outcome.joints),
-                       warnings=list(outcome.warnings), config=asdict(setting))
+                       warnings=list(outcome.warnings), config={**asdict(setting), "realism": realism_key(setting.realism) or "clean"})
             rows.append(row)
     return rows
 
