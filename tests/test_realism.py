@@ -77,6 +77,8 @@ def test_presets_and_validation():
     with pytest.raises(ValueError, match="realistic"):
         rz.preset("dirty")
     assert rz.jpeg_quality(1.0) == 70
+    assert CLEAN.key() == "" and Realism(background=1, occluder=0.5).key() == "re-bg1-oc0.5"
+    assert set(rz.KNOB_ABBREVIATIONS) == set(rz.KNOBS) and len(set(rz.KNOB_ABBREVIATIONS.values())) == len(rz.KNOBS)
 
 
 def test_clean_is_the_plain_raycast(scenes, tmp_path):

@@ -150,6 +150,12 @@ class Realism:
         """(degrees, object units) of the written pose error at this ``pose_noise`` level."""
         return POSE_NOISE_DEG * self.pose_noise, POSE_NOISE_TRANSLATION * self.pose_noise
 
+    def key(self) -> str:
+        """A short folder-name-safe key of the non-zero levels ("" when clean), e.g.
+        ``re-bg1-oc0.5``, for render caches (``BenchSetting.render_key``)."""
+        parts = [f"{KNOB_ABBREVIATIONS[k]}{v:g}" for k, v in self.levels().items() if v]
+        return "re-" + "-".join(parts) if parts else ""
+
     @property
     def degrades_views(self) -> bool:
         """True when any per-view (image, depth, mask) knob is on."""
@@ -158,6 +164,9 @@ class Realism:
 
 
 KNOBS: tuple[str, ...] = tuple(f.name for f in fields(Realism))
+KNOB_ABBREVIATIONS = {"background": "bg", "depth_warp": "dw", "depth_scale": "ds", "edge_smear": "es",
+                      "depth_noise": "dn", "confidence": "cf", "occluder": "oc", "image_noise": "in",
+                      "jpeg": "jp", "mask_ragged": "mr", "pose_noise": "pn"}
 CLEAN = Realism()
 PRESETS: dict[str, Realism] = {"clean": CLEAN, "realistic": Realism(**{k: 1.0 for k in KNOBS})}
 
