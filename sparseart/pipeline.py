@@ -121,8 +121,8 @@ def run(scene: Scene | str | Path, labeler: PartLabeler | None = None,
     warnings = [*scene.warnings, *aligned.warnings]
     if options.matcher is not None and matcher is None:
         warnings.append("--matcher not used: every image has a camera pose, so nothing is aligned")
-    masks_used = _segmenter_spec(scene, options) != "none"
-    start, end = (_labelled_cloud(scene, state, aligned.pointmaps[state], masks_used) for state in ("start", "end"))
+    segmenter = _segmenter_spec(scene, options)
+    start, end = (_labelled_cloud(scene, state, aligned.pointmaps[state], segmenter) for state in ("start", "end"))
     return _label_and_fit(start, end, labeler, options, clock, warnings, scene=scene,
                           alignment=aligned.alignment, frame=aligned.frame, motion_hints=aligned.motion_hints)
 
@@ -223,14 +223,17 @@ def _segment(scene: Scene, options: RunOptions, clock: StageClock) -> None:
             raise SceneError(str(error)) from None
 
 
-def _labelled_cloud(scene: Scene, state: str, pointmaps: list, masks_used: bool) -> LabelledCloud:
-    """Label transfer: the state's kept views (the first len(pointmaps) frames) -> one labelled cloud
-    (segments cleared when masks are not used). SceneError when too few valid points remain."""
-    cloud = build_labelled_cloud(state, scene.frames(state)[:len(pointmaps)], pointmaps)
+def _labelled_cloud(scene: Scene, state: str, pointmaps: list, segmenter: str) -> LabelledCloud:
+    """Label transfer: the state's kept views (the first len(pointmaps) frames) -> one labelled cloud.
+    With the user's masks ("given") mask-0 pixels are not the object (table, wall, a hand) and are
+    left out; without masks ("none") the segments are cleared. SceneError when too few valid
+    points remain."""
+    cloud = build_labelled_cloud(state, scene.frames(state)[:len(pointmaps)], pointmaps,
+                                 drop_background=segmenter == "given")
     if len(cloud) < MIN_STATE_POINTS:
         raise SceneError(f"{scene.root / state}: only {len(cloud)} valid 3D points after removing "
                          f"invalid, low-confidence and flying pixels")
-    if not masks_used:
+    if segmenter == "none":
         cloud.segment[:] = -1
         cloud.segment_source.clear()
     return cloud

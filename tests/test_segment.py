@@ -297,5 +297,5 @@ def test_sam_model_errors(sam_models, tmp_path):
         SamSegmenter(sam_models["encoder"], four_channels)
     junk = tmp_path / "junk.onnx"
     junk.write_bytes(b"not a model")
-    with pytest.raises(ValueError, match="junk.onnx: cannot load the SAM decoder"):
+    with pytest.raises(ValueError, match="junk.onnx: SAM decoder: not a valid ONNX model"):
         SamSegmenter(sam_models["encoder"], junk)

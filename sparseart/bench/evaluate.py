@@ -27,16 +27,28 @@ def load_gt(path: str | Path) -> dict[str, Any]:
 def true_groups(cloud: LabelledCloud, scene: Scene, gt: dict[str, Any]) -> np.ndarray:
     """(N,) int64 ground-truth part group (unscrambled mask id) of every point, 0 = unknown.
 
-    Reads the scene's mask images through each point's frame and pixel index, so it works even
-    when the run itself ignored the masks.
+    Reads the true masks through each point's frame and pixel index, so it works even when the run
+    itself ignored the masks: ``gt_mask/{state}/NNN.png`` when gt.json names them (realistic
+    renders, whose written masks are frayed, merged and split), else the scene's written masks
+    mapped back through gt.json's ``mask_maps`` (scrambled ids).
     """
+    import cv2
+
     groups = np.zeros(len(cloud), dtype=np.int64)
-    maps = gt.get("mask_maps", {}).get(cloud.state)
+    true_masks = gt.get("gt_masks")
+    maps = None if true_masks else gt.get("mask_maps", {}).get(cloud.state)
     for frame in scene.frames(cloud.state):
-        if frame.mask is None:
+        if true_masks:
+            path = scene.root / "gt_mask" / cloud.state / f"{frame.rgb_path.stem}.png"
+            mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if mask is None:
+                continue
+        elif frame.mask is None:
             continue
+        else:
+            mask = frame.mask
         here = cloud.frame_index == frame.index
-        written = frame.mask.reshape(-1)[cloud.pixel_index[here]]
+        written = mask.reshape(-1)[cloud.pixel_index[here]].astype(np.int64)
         if maps:
             table = {int(k): int(v) for k, v in maps[frame.index].items()}
             lookup = np.vectorize(lambda w: table.get(int(w), 0), otypes=[np.int64])

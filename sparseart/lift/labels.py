@@ -40,7 +40,7 @@ def segment_id(frame_index: int, mask_id: int) -> int:
 
 
 def build_labelled_cloud(state: str, frames: list[Frame], pointmaps: list[Pointmap],
-                         drop_mask_boundaries: bool = True) -> LabelledCloud:
+                         drop_mask_boundaries: bool = True, drop_background: bool = False) -> LabelledCloud:
     """Concatenate the valid points of a state's frames and copy mask labels onto them.
 
     Args:
@@ -49,6 +49,8 @@ def build_labelled_cloud(state: str, frames: list[Frame], pointmaps: list[Pointm
         pointmaps: one per frame, same order; points (H*W, 3) float64 in the scene frame.
         drop_mask_boundaries: label pixels on a mask boundary -1 (their depth may belong to either
             side), keeping the points themselves.
+        drop_background: leave out the points of mask-0 pixels (user masks: 0 = not the object,
+            e.g. a table, a wall, a hand); boundary pixels are kept. Frames without masks keep all.
 
     Returns:
         LabelledCloud with (N, 3) float64 points; ``segment`` is -1 for background (mask 0),
@@ -62,6 +64,9 @@ def build_labelled_cloud(state: str, frames: list[Frame], pointmaps: list[Pointm
             raise ValueError(f"{frame.rgb_path}: pointmap grid {pointmap.height}x{pointmap.width} "
                              f"does not match the image {frame.shape[0]}x{frame.shape[1]}")
         pixel = np.flatnonzero(pointmap.valid)
+        if drop_background and frame.mask is not None:
+            pixel = pixel[_object_or_boundary(frame.mask, frame.depth if frame.depth is not None else pointmap.depth)
+                          .reshape(-1)[pixel]]
         labels = np.full(pixel.shape, -1, dtype=np.int64)
         if frame.mask is not None:
             mask = frame.mask
@@ -89,3 +94,9 @@ def build_labelled_cloud(state: str, frames: list[Frame], pointmaps: list[Pointm
         confidence=np.concatenate(parts["conf"]),
         segment_source=sources,
     )
+
+
+def _object_or_boundary(mask: np.ndarray, depth: np.ndarray | None) -> np.ndarray:
+    """(H, W) bool: pixels of a mask id > 0, or on a mask boundary whose depth may belong to the
+    object. O(H W)."""
+    return (mask > 0) | mask_boundary(mask, depth)

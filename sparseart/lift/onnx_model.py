@@ -25,14 +25,13 @@ plus O(S H W) numpy for preprocessing and decoding.
 from __future__ import annotations
 
 import math
-import os
-import re
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from .. import _onnx
 from ..types import Camera, Pointmap, Scene
 from .contract import Contract, ModelError, ModelIO, TensorInfo, resolve_contract
 from .preprocess import PixelMap, SizeRule, prepare_frames
@@ -140,96 +139,12 @@ class OnnxLift:
 # --------------------------------------------------------------------------- memory and session
 
 
-def available_memory_bytes() -> int | None:
-    """MemAvailable from /proc/meminfo, else free physical pages from os.sysconf, else None."""
-    try:
-        with open("/proc/meminfo") as stream:
-            for line in stream:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES")) * int(os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
-
-
-def model_bytes(path: Path) -> int:
-    """Size of the model file plus external-data files beside it (``<name>.data``,
-    ``<name>_data``, ``<stem>.data``, ``<stem>.onnx_data`` ...): what loading keeps resident."""
-    total = path.stat().st_size
-    for sibling in path.parent.iterdir():
-        if sibling != path and sibling.is_file() and sibling.name.startswith(path.stem) and (
-                sibling.suffix in (".data", ".bin", ".onnx_data") or sibling.name.endswith("_data")):
-            total += sibling.stat().st_size
-    return total
-
-
-def _gb(value: float) -> str:
-    """Bytes as GB (MB below 0.1 GB), for error messages."""
-    return f"{value / 1e9:.2f} GB" if value >= 1e8 else f"{value / 1e6:.3f} MB"
-
-
-def _load_error(path: Path, error: Exception) -> ModelError:
-    import onnxruntime as ort
-
-    text = str(error)
-    version = ort.__version__
-    if match := re.search(r"Unsupported model IR version: (\d+), max supported IR version: (\d+)", text):
-        return ModelError(f"{path}: model IR version {match[1]} is newer than onnxruntime {version} supports "
-                          f"(max {match[2]}); upgrade onnxruntime or re-save the model with onnx after "
-                          f"setting model.ir_version = {match[2]}")
-    match = (re.search(r"Opset (\d+) is under development", text)
-             or re.search(r"[Oo]pset (\d+)[^\n]*not (?:be )?supported", text))
-    if match:
-        till = re.search(r"till opset (\d+)", text)
-        limit = f" (official support up to opset {till[1]})" if till else ""
-        return ModelError(f"{path}: model opset {match[1]} is not supported by onnxruntime {version}{limit}; "
-                          f"upgrade onnxruntime or re-export the model with a lower opset")
-    if "Protobuf parsing failed" in text or "INVALID_PROTOBUF" in text:
-        return ModelError(f"{path}: not a valid ONNX model (protobuf parsing failed: truncated or corrupt file?)")
-    if match := re.search(r"[Ee]xternal data path does not exist: \"?([^\"\n]+)\"?", text):
-        return ModelError(f"{path}: external data file {match[1]} not found (keep the .onnx file and its "
-                          f"data file together in one folder, under the name the model references)")
-    first = next((line.strip() for line in text.splitlines() if line.strip()), type(error).__name__)
-    return ModelError(f"{path}: onnxruntime cannot load the model ({first[:300]})")
-
-
 def open_session(path: str | Path, options: OnnxLiftOptions):
-    """An onnxruntime InferenceSession, created from the path (so external data beside the model
-    is found), with the RAM check, thread count, arena and providers of ``options``."""
-    import onnxruntime as ort
-
-    path = Path(path)
-    if not path.exists():
-        raise ModelError(f"{path}: model file not found")
-    if not path.is_file():
-        raise ModelError(f"{path}: not a file (expected an .onnx model)")
-    size = model_bytes(path)
-    budget = options.memory_limit_bytes if options.memory_limit_bytes is not None else available_memory_bytes()
-    if budget is not None and size > budget:
-        raise ModelError(f"{path}: the model's weights take {_gb(size)} but only {_gb(budget)} of RAM "
-                         f"is available")
-    session_options = ort.SessionOptions()
-    session_options.log_severity_level = 3
-    if options.threads > 0:
-        session_options.intra_op_num_threads = int(options.threads)
-    if size > options.arena_off_above_bytes:
-        session_options.enable_cpu_mem_arena = False
-    available = ort.get_available_providers()
-    if options.providers is not None:
-        missing = [p for p in options.providers if p not in available]
-        if missing:
-            raise ModelError(f"{path}: execution provider(s) {', '.join(missing)} not available "
-                             f"(onnxruntime has {', '.join(available)})")
-        providers = list(options.providers)
-    else:
-        providers = [p for p in ("CUDAExecutionProvider", "CPUExecutionProvider") if p in available]
-    try:
-        return ort.InferenceSession(str(path), sess_options=session_options, providers=providers)
-    except Exception as error:  # onnxruntime raises private exception types
-        raise _load_error(path, error) from None
+    """The reconstructor's onnxruntime session (:func:`sparseart._onnx.open_session` with the RAM
+    check, thread count, arena and providers of ``options``; failures are :class:`ModelError`)."""
+    return _onnx.open_session(path, threads=options.threads, providers=options.providers,
+                              memory_limit_bytes=options.memory_limit_bytes,
+                              arena_off_above_bytes=options.arena_off_above_bytes, error_type=ModelError)
 
 
 def model_io(session, path: Path) -> ModelIO:
@@ -388,7 +303,7 @@ class Reconstructor:
 
     def _check_memory(self, frames: int, pixel_maps: list[PixelMap]) -> None:
         budget = (self.options.memory_limit_bytes if self.options.memory_limit_bytes is not None
-                  else available_memory_bytes())
+                  else _onnx.available_memory_bytes())
         if budget is None:
             return
         grid = pixel_maps[0].grid_width * pixel_maps[0].grid_height
@@ -402,9 +317,9 @@ class Reconstructor:
         need = inputs + outputs + model + decode
         if need > budget:
             raise ModelError(f"{self.path}: running {frames} frames at {pixel_maps[0].grid_width}x"
-                             f"{pixel_maps[0].grid_height} needs about {_gb(need)} (inputs {_gb(inputs)}, "
-                             f"outputs {_gb(outputs)}, model activations {_gb(model)}, decoding {_gb(decode)}) "
-                             f"but only {_gb(budget)} of RAM is available; use fewer frames, a smaller "
+                             f"{pixel_maps[0].grid_height} needs about {_onnx.size_text(need)} (inputs {_onnx.size_text(inputs)}, "
+                             f"outputs {_onnx.size_text(outputs)}, model activations {_onnx.size_text(model)}, decoding {_onnx.size_text(decode)}) "
+                             f"but only {_onnx.size_text(budget)} of RAM is available; use fewer frames, a smaller "
                              f"long side or per_state mode")
 
     def infer(self, images: list[np.ndarray]) -> tuple[dict[str, np.ndarray], list[PixelMap]]:

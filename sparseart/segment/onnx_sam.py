@@ -71,18 +71,11 @@ class SamOptions:
 
 
 def _session(path: Path, role: str, threads: int):
-    import onnxruntime as ort
+    """The SAM encoder or decoder session (:func:`sparseart._onnx.open_session`; SceneError, a
+    ValueError, naming the file)."""
+    from sparseart._onnx import open_session
 
-    if not path.is_file():
-        raise ValueError(f"{path}: SAM {role} model file not found")
-    options = ort.SessionOptions()
-    if threads > 0:
-        options.intra_op_num_threads = threads
-    try:
-        return ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])
-    except Exception as error:  # onnxruntime raises several private exception types
-        first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise ValueError(f"{path}: cannot load the SAM {role} as an ONNX model ({first_line})") from None
+    return open_session(path, what=f"SAM {role}", threads=threads, providers=["CPUExecutionProvider"])
 
 
 def _describe(io) -> str:
