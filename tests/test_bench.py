@@ -9,7 +9,8 @@ import pytest
 
 from sparseart.bench.icp_peer import PeerOptions, icp_peer, joint_from_transform, register_part_icp
 from sparseart.bench.objects import BenchSetting, evaluate_object
-from sparseart.bench.grid import grid_settings, pareto_front, ratio_note, run_bench
+from sparseart.bench.grid import grid_settings, ratio_note, run_bench
+from sparseart.bench.plots import pareto_front
 from sparseart.datasets.scene_writer import add_flying_pixels, perturb_pose
 from sparseart.geometry.transforms import transform_from_prismatic, transform_from_revolute
 from sparseart.bench.metrics import axis_angle_error_deg, axis_position_error

@@ -25,6 +25,7 @@ from collections.abc import Sequence
 from typing import Any, TextIO
 
 from sparseart.bench import metrics
+from sparseart.bench.plots import plot_error_vs_factor, plot_error_vs_time
 from sparseart.bench.objects import METHOD_PEER, METHOD_SPARSEART, BenchSetting, evaluate_object, refine_available
 from sparseart.io.scene import write_bytes_atomic, write_json_atomic
 from sparseart.types import SceneError
@@ -173,16 +174,6 @@ def aggregate(rows: list[dict[str, Any]], keys: tuple[str, ...]) -> list[dict[st
     return out
 
 
-def pareto_front(points: list[tuple[float, float]]) -> list[int]:
-    """Indices of the points not dominated in (time, error): no other point is at most as slow and
-    at most as wrong and strictly better in one. O(P^2) for P points (P ~ tens)."""
-    front = []
-    for i, (t, e) in enumerate(points):
-        if not any(t2 <= t and e2 <= e and (t2 < t or e2 < e) for j, (t2, e2) in enumerate(points) if j != i):
-            front.append(i)
-    return front
-
-
 def _fmt(value: Any, digits: int = 3) -> str:
     if value is None:
         return "-"
@@ -308,8 +299,6 @@ def write_outputs(result: BenchResult, out_dir: Path, plots: bool = True) -> lis
                                                  "skipped": result.skipped, "failures": result.failures})
     written += [out_dir / "rows.json", out_dir / "summary.json"]
     if plots and result.summary:
-        from sparseart.bench.plots import plot_error_vs_factor, plot_error_vs_time
-
         written.append(plot_error_vs_time(result.summary, out_dir / "error_vs_time.png"))
         written.append(plot_error_vs_factor(result.summary, out_dir / "error_vs_factor.png"))
     return written

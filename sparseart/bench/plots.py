@@ -10,11 +10,21 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from sparseart.bench.grid import pareto_front
 from sparseart.io.scene import write_bytes_atomic
 
 METHOD_STYLE = {"sparseart": ("tab:blue", "o"), "icp_peer": ("tab:orange", "s")}
 ERROR_FLOOR_DEG = 0.01  # log axis: errors below this are drawn at it
+
+
+def pareto_front(points: list[tuple[float, float]]) -> list[int]:
+    """Indices of the points not dominated in (time, error): no other point is at most as slow and
+    at most as wrong and strictly better in one. O(P^2) for P points (P ~ tens)."""
+    front = []
+    for i, (t, e) in enumerate(points):
+        if not any(t2 <= t and e2 <= e and (t2 < t or e2 < e) for j, (t2, e2) in enumerate(points) if j != i):
+            front.append(i)
+    return front
+
 
 
 def _pyplot():
