@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
@@ -237,9 +237,13 @@ class StageRecord:
 
 @dataclass
 class PartResult:
+    """One part of the result: its spec, how many points it had, its joint (movable parts) and,
+    after ``--refine``, the refinement (``sparseart.refine.api.PartRefinement``: Gaussians, views)."""
+
     spec: PartSpec
     n_points: int
     joint: JointEstimate | None = None
+    refinement: Any = None
 
 
 @dataclass

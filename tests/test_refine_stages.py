@@ -69,7 +69,7 @@ def test_pipeline_refine_replaces_the_joint_and_records_stages(small_run):
     assert joint.type == plain.joints[0][1].type
     chosen = info["after"] if info["accepted"] else info["before"]
     np.testing.assert_allclose(joint.axis, chosen["axis"])
-    for gaussians in joint.diagnostics["refine_model"].sets.values():
+    for gaussians in part.refinement.sets.values():
         for tensor in gaussians.tensors().values():
             assert torch.isfinite(tensor).all()
 

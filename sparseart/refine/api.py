@@ -366,7 +366,7 @@ def refine_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, p
 
     Each refined part's ``joint`` is replaced by the accepted JointEstimate (same fields);
     ``joint.diagnostics["refine"]`` holds before/after values, losses and seconds, and
-    ``joint.diagnostics["refine_model"]`` the :class:`PartRefinement` (Gaussians, views) for the
+    ``PartResult.refinement`` the :class:`PartRefinement` (Gaussians, views) for the
     outputs (not serialised). Failures of one part become a warning; the seed joint stays.
     """
     if scene is None:
@@ -400,7 +400,7 @@ def refine_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, p
             warnings.append(f"part {part.spec.id}: refinement failed, seed joint kept: {error}")
             continue
         outcome.joint.diagnostics["refine"] = outcome.diagnostics
-        outcome.joint.diagnostics["refine_model"] = outcome
+        part.refinement = outcome
         warnings.extend(f"part {part.spec.id}: {w}" for w in outcome.warnings)
         part.joint = outcome.joint
         done.append(outcome)

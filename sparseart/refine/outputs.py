@@ -109,7 +109,7 @@ def write_refine_outputs(result: Articulation, out_dir: str | Path,
     written: list[Path] = []
     summary = {}
     for part, joint in result.joints:
-        outcome = joint.diagnostics.get("refine_model")
+        outcome = part.refinement
         if outcome is None:
             continue
         pid = part.spec.id
