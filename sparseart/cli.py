@@ -114,42 +114,96 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = _parser().parse_args(argv)
+    """Run the command line; returns the exit code (0 ok, 2 bad input, 1 internal error, 130 ^C).
+
+    Every failure prints exactly one line to stderr: bad input (a :class:`SceneError`, a bad
+    option) names the file or option and the problem; anything else is a bug, reported in one line
+    with a pointer to ``--debug`` (which prints the traceback). Without ``--debug`` Python and
+    numpy warnings are silenced, so they cannot add lines to stderr.
+    """
+    args = _parse_args(argv)
+    if isinstance(args, int):
+        return args
+    import warnings
+
+    import numpy as np
+
+    command = {"run": _cmd_run, "demo": _cmd_demo, "render": _cmd_render, "bench": _cmd_bench}[args.command]
     try:
-        return {"run": _cmd_run, "demo": _cmd_demo, "render": _cmd_render, "bench": _cmd_bench}[args.command](args)
+        with warnings.catch_warnings(), np.errstate(all="ignore" if not args.debug else "warn"):
+            if not args.debug:
+                warnings.simplefilter("ignore")
+            return command(args)
     except SceneError as error:
-        print(f"sparseart: error: {error}", file=sys.stderr)
+        print(f"sparseart: error: {_one_line(str(error))}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         print("sparseart: interrupted", file=sys.stderr)
         return 130
-    except Exception as error:  # noqa: BLE001 - last line of defence: one line, not a traceback
+    except BaseException as error:  # noqa: BLE001 - last line of defence: one line, not a traceback
+        if isinstance(error, SystemExit):
+            raise
         if args.debug:
             traceback.print_exc()
-        print(f"sparseart: internal error: {type(error).__name__}: {error} (rerun with --debug for details)",
-              file=sys.stderr)
+        detail = _one_line(str(error))[:300]
+        print(f"sparseart: internal error: {type(error).__name__}{': ' + detail if detail else ''} "
+              f"(rerun with --debug for details)", file=sys.stderr)
         return 1
 
 
+def _one_line(text: str) -> str:
+    from sparseart.io.validate import one_line
+
+    return one_line(text)
+
+
+def _parse_args(argv: list[str] | None) -> argparse.Namespace | int:
+    """Parsed arguments, or the exit code after a usage error printed as ONE line (argparse's own
+    usage block is dropped; ``--help`` still prints in full)."""
+    import contextlib
+    import io
+
+    captured = io.StringIO()
+    try:
+        with contextlib.redirect_stderr(captured):
+            return _parser().parse_args(argv)
+    except SystemExit as stop:
+        code = stop.code if isinstance(stop.code, int) else (0 if stop.code is None else EXIT_BAD_INPUT)
+        lines = [line for line in captured.getvalue().splitlines() if line.strip()]
+        if code != 0 and lines:
+            print(_one_line(lines[-1]), file=sys.stderr)
+        elif lines:
+            print("\n".join(lines), file=sys.stderr)
+        return code
+
+
 def _cmd_run(args: argparse.Namespace) -> int:
+    """``sparseart run``: check --out first, run, write every output into a staging folder beside
+    --out and move them in together at the end (:mod:`sparseart.io.outputs`)."""
     from sparseart.io.articulation import articulation_to_dict, summary_lines, write_articulation
+    from sparseart.io.outputs import StagedOutputs, check_out_dir
     from .pipeline import RunOptions, run
 
-    if args.out.exists() and not args.out.is_dir():
-        raise SceneError(f"{args.out}: --out exists and is not a folder")
+    check_out_dir(args.out, args.scene)
     refine_options, render_states = _refine_settings(args) if args.refine else (None, ())
     options = RunOptions(joint_type=args.joint_type, use_masks=not args.no_masks, seed=args.seed,
                          refine=args.refine, refine_options=refine_options, segmenter=args.segmenter,
                          model=args.model, onnx_options=_onnx_settings(args), threads=_threads(args),
                          matcher=args.matcher, matcher_min_score=_matcher_min_score(args))
-    result = run(args.scene, labeler=_labeler(args), options=options)
-    path = write_articulation(result, args.out)
-    if args.refine:
-        from .refine.outputs import write_refine_outputs
+    labeler = _labeler(args)
+    with StagedOutputs(args.out, args.scene) as staged:
+        result = run(args.scene, labeler=labeler, options=options)
+        try:
+            written = [write_articulation(result, staged.path)]
+            if args.refine:
+                from .refine.outputs import write_refine_outputs
 
-        for written in write_refine_outputs(result, args.out, render_states):
-            print(f"wrote {written}", file=sys.stderr)
-    extras = _write_extras(result, args)
+                written += list(write_refine_outputs(result, staged.path, render_states))
+            written += _write_extras(result, args, staged.path)
+        except OSError as error:
+            raise SceneError(f"{args.out}: cannot write the outputs ({error.strerror or error})") from None
+        staged.commit()
+    path, *extras = [staged.final(p) for p in written]
     if args.json:
         print(json.dumps(articulation_to_dict(result), indent=2))
     else:
@@ -209,21 +263,23 @@ def _labeler(args: argparse.Namespace):
         raise SceneError(f"--labeler vlm: {error}") from None
 
 
-def _write_extras(result, args: argparse.Namespace) -> list[Path]:
-    """The --urdf / --ply / --report files beside articulation.json (each written atomically)."""
+def _write_extras(result, args: argparse.Namespace, out_dir: Path | None = None) -> list[Path]:
+    """The --urdf / --ply / --report files beside articulation.json, in ``out_dir`` (default
+    ``args.out``; ``_cmd_run`` passes its staging folder)."""
+    out_dir = Path(args.out if out_dir is None else out_dir)
     written: list[Path] = []
     if getattr(args, "urdf", False):
         from sparseart.io.urdf import write_urdf
 
-        written.append(write_urdf(result, args.out, name="object"))
+        written.append(write_urdf(result, out_dir, name="object"))
     if getattr(args, "ply", False):
         from sparseart.io.ply import write_labelled_clouds
 
-        written.extend(write_labelled_clouds(result, args.out))
+        written.extend(write_labelled_clouds(result, out_dir))
     if getattr(args, "report", False):
         from sparseart.io.report import write_report
 
-        written.append(write_report(result, args.out / "report.png"))
+        written.append(write_report(result, out_dir / "report.png"))
     return written
 
 

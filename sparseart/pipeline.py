@@ -15,6 +15,7 @@ import numpy as np
 
 from sparseart.align.static import align_on_static, polish_on_static
 from sparseart.clock import StageClock
+from sparseart.io.validate import validate_clouds
 from sparseart.joints.candidates import fit_parts
 from sparseart.joints.fit import FitConfig
 from sparseart.labelers.base import PartLabeler
@@ -138,6 +139,7 @@ def run_clouds(start: LabelledCloud, end: LabelledCloud, labeler: PartLabeler | 
             registered to the start cloud through the static part first.
         labeler, options, overrides: as in :func:`run`.
     """
+    start, end = validate_clouds(start, end)
     options = _options(options, overrides)
     clock = StageClock()
     clock.skip("lift", "clouds given")

@@ -2,7 +2,8 @@
 
 Every problem with the input raises :class:`sparseart.types.SceneError` whose message is one line
 naming the offending file and what is wrong, so the CLI can print it and exit with code 2 before
-any output is written.
+any output is written. The checks themselves (regular files, size caps, headers before decoding,
+JSON limits, numeric ranges) live in :mod:`sparseart.io.validate`, the one validation boundary.
 """
 from __future__ import annotations
 
@@ -14,11 +15,13 @@ from typing import Any
 
 import numpy as np
 
+from sparseart.io import validate as check
 from sparseart.types import STATES, Camera, Frame, Scene, SceneError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 MAX_VIEWS_PER_STATE = 4
 RIGIDITY_TOLERANCE = 1e-3  # max |R^T R - I| and |det R - 1| accepted for cam_to_world
+DEFAULT_DEPTH_SCALE = 1000.0
 
 
 def load_scene(root: str | Path, require_depth: bool = True) -> Scene:
@@ -37,19 +40,35 @@ def load_scene(root: str | Path, require_depth: bool = True) -> Scene:
     """
     root = Path(root)
     if not root.exists():
-        raise SceneError(f"{root}: scene folder does not exist")
+        raise check._fail(root, "scene folder does not exist")
     if not root.is_dir():
-        raise SceneError(f"{root}: not a folder (expected a scene folder with start/ and end/)")
+        raise check._fail(root, "not a folder (expected a scene folder with start/ and end/)")
     cameras = _read_cameras_json(root)
-    depth_scale = cameras.get("depth_scale", 1000.0) if cameras else 1000.0
+    depth_scale = cameras.get("depth_scale", DEFAULT_DEPTH_SCALE) if cameras else DEFAULT_DEPTH_SCALE
     warnings: list[str] = []
+    budget = _PixelBudget()
     states: dict[str, list[Frame]] = {}
     for state in STATES:
-        states[state] = _read_state(root, state, cameras, float(depth_scale), warnings)
+        states[state] = _read_state(root, state, cameras, float(depth_scale), warnings, budget)
     scene = Scene(root=root, start=states["start"], end=states["end"], depth_scale=float(depth_scale),
                   warnings=warnings)
     _check_consistency(scene, require_depth)
+    if scene.posed and scene.has_depth:
+        scene.warnings.extend(check.check_posed_units(scene.all_frames, scene.depth_scale, root / "cameras.json"))
     return scene
+
+
+class _PixelBudget:
+    """Counts the pixels of every image read against ``validate.MAX_SCENE_PIXELS``."""
+
+    def __init__(self) -> None:
+        self.used = 0
+
+    def take(self, path: Path, width: int, height: int) -> None:
+        self.used += width * height
+        if self.used > check.MAX_SCENE_PIXELS:
+            raise check._fail(path, f"the scene's images hold more than {check.MAX_SCENE_PIXELS} pixels together "
+                                    f"(the limit; downscale the images or use fewer views)")
 
 
 # --------------------------------------------------------------------------- cameras.json
@@ -57,42 +76,37 @@ def load_scene(root: str | Path, require_depth: bool = True) -> Scene:
 
 def _read_cameras_json(root: Path) -> dict[str, Any] | None:
     path = root / "cameras.json"
-    if not path.exists():
+    if not check.is_present(path):
         return None
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError) as error:
-        raise SceneError(f"{path}: cannot read file ({error})") from None
-    except json.JSONDecodeError as error:
-        raise SceneError(f"{path}: invalid JSON at line {error.lineno}: {error.msg}") from None
+    data = check.load_json_file(path)
     if not isinstance(data, dict):
-        raise SceneError(f"{path}: expected a JSON object at top level")
+        raise check._fail(path, "expected a JSON object at top level")
     convention = data.get("convention", "opencv")
     if convention != "opencv":
-        raise SceneError(f"{path}: convention '{convention}' not supported (use 'opencv')")
-    scale = data.get("depth_scale", 1000.0)
-    if not isinstance(scale, (int, float)) or not np.isfinite(scale) or scale <= 0:
-        raise SceneError(f"{path}: depth_scale must be a positive number, got {scale!r}")
+        shown = convention if isinstance(convention, str) else check._type_name(convention)
+        raise check._fail(path, f"convention '{shown[:80]}' not supported (use 'opencv')")
+    if "depth_scale" in data:
+        low, high = check.DEPTH_SCALE_RANGE
+        if not check.is_number(data["depth_scale"]):
+            raise check._fail(path, f"depth_scale must be a positive number, got {check._type_name(data['depth_scale'])}")
+        scale = check.number(data["depth_scale"], "depth_scale", path)
+        if scale <= 0:
+            raise check._fail(path, f"depth_scale must be a positive number, got {scale:g}")
+        check.number(scale, "depth_scale (PNG depth units per metre)", path, low, high)
     for state in STATES:
         entries = data.get(state, [])
         if not isinstance(entries, list):
-            raise SceneError(f"{path}: '{state}' must be a list of camera entries")
+            raise check._fail(path, f"'{state}' must be a list of camera entries")
         for i, entry in enumerate(entries):
             if not isinstance(entry, dict):
-                raise SceneError(f"{path}: {state}[{i}] must be an object")
+                raise check._fail(path, f"{state}[{i}] must be an object")
+            if "image" in entry:
+                check.text(entry["image"], f"{state}[{i}].image", path)
     return data
 
 
 def _matrix(value: Any, shape: tuple[int, int], where: str, path: Path) -> np.ndarray:
-    try:
-        matrix = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise SceneError(f"{path}: {where} is not a numeric matrix") from None
-    if matrix.shape != shape:
-        raise SceneError(f"{path}: {where} must be {shape[0]}x{shape[1]}, got shape {matrix.shape}")
-    if not np.all(np.isfinite(matrix)):
-        raise SceneError(f"{path}: {where} has non-finite values")
-    return matrix
+    return check.matrix(value, shape, where, path)
 
 
 def _camera_entry(entries: list[dict], image_rel: str, order: int, path: Path, state: str) -> dict | None:
@@ -110,106 +124,96 @@ def _parse_camera(entry: dict, where: str, path: Path, width: int, height: int) 
     if "K" not in entry:
         return None
     K = _matrix(entry["K"], (3, 3), f"{where} K", path)
-    if K[0, 0] <= 0 or K[1, 1] <= 0 or abs(K[2, 2] - 1.0) > 1e-6 or np.any(K[2, :2] != 0):
-        raise SceneError(f"{path}: {where} K must be [[fx,0,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0")
+    check.check_intrinsics(K, width, height, where, path)
     cam_to_world = None
     if entry.get("cam_to_world") is not None:
         cam_to_world = _matrix(entry["cam_to_world"], (4, 4), f"{where} cam_to_world", path)
-        rotation = cam_to_world[:3, :3]
-        orthogonality = np.abs(rotation.T @ rotation - np.eye(3)).max()
-        if (orthogonality > RIGIDITY_TOLERANCE or abs(np.linalg.det(rotation) - 1.0) > RIGIDITY_TOLERANCE
-                or np.abs(cam_to_world[3] - [0, 0, 0, 1]).max() > 1e-9):
-            raise SceneError(f"{path}: {where} cam_to_world is not a rigid transform "
-                             f"(rotation must be orthonormal with det +1, last row 0 0 0 1)")
+        check.check_pose(cam_to_world, where, path, RIGIDITY_TOLERANCE)
     return Camera(K=K, width=width, height=height, cam_to_world=cam_to_world)
 
 
 # --------------------------------------------------------------------------- images
 
 
-def _read_image(path: Path, flags: int) -> np.ndarray:
-    import cv2
+def _read_image(path: Path, budget: "_PixelBudget | None" = None,
+                match: tuple[Path, int, int] | None = None) -> np.ndarray:
+    """Decode a PNG/JPEG after checking the file and its header (:mod:`validate`).
 
-    try:
-        image = cv2.imread(str(path), flags)
-    except cv2.error:
-        image = None
-    if image is None:
-        raise SceneError(f"{path}: cannot read image (missing, empty or not a valid PNG/JPEG)")
-    return image
+    match: (rgb path, width, height) the image must have; compared with the header, before decoding.
+    """
+    data = check.read_regular_file(path, check.MAX_IMAGE_FILE_BYTES, "image")
+    header = check.image_header(data, path)
+    if match is not None:
+        _check_size(path, header.width, header.height, match)
+    if budget is not None:
+        budget.take(path, header.width, header.height)
+    return check.decode_image(data, header, path)
 
 
-def _read_rgb(path: Path) -> np.ndarray:
-    import cv2
+def _check_size(path: Path, width: int, height: int, match: tuple[Path, int, int]) -> None:
+    rgb_path, rgb_width, rgb_height = match
+    if (width, height) != (rgb_width, rgb_height):
+        raise check._fail(path, f"size {width}x{height} does not match image {rgb_path.name} "
+                                f"({rgb_width}x{rgb_height})")
 
-    image = _read_image(path, cv2.IMREAD_UNCHANGED)
+
+def _read_rgb(path: Path, budget: "_PixelBudget | None" = None) -> np.ndarray:
+    image = _read_image(path, budget)
     if image.dtype != np.uint8:
-        raise SceneError(f"{path}: RGB image must be 8-bit, got {image.dtype}")
+        raise check._fail(path, f"RGB image must be 8-bit, got {image.dtype}")
     if image.ndim == 2:
         image = np.repeat(image[:, :, None], 3, axis=2)
     elif image.shape[2] == 4:
         image = image[:, :, :3]
     elif image.shape[2] != 3:
-        raise SceneError(f"{path}: RGB image must have 3 channels, got {image.shape[2]}")
+        raise check._fail(path, f"RGB image must have 3 channels, got {image.shape[2]}")
     return np.ascontiguousarray(image[:, :, ::-1])
 
 
-def _read_depth(path: Path, depth_scale: float) -> np.ndarray:
+def _read_depth(path: Path, depth_scale: float, match: tuple[Path, int, int] | None = None) -> np.ndarray:
     if path.suffix == ".npy":
-        try:
-            depth = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as error:
-            raise SceneError(f"{path}: cannot read depth array ({error})") from None
-        if depth.ndim != 2 or depth.dtype.kind != "f":
-            raise SceneError(f"{path}: depth .npy must be a 2-D float array of metres, "
-                             f"got {depth.dtype} with shape {depth.shape}")
-        depth = depth.astype(np.float64)
-        depth[~np.isfinite(depth)] = 0.0
+        depth = check.read_npy_file(path, kinds="f")
+        if match is not None:
+            _check_size(path, depth.shape[1], depth.shape[0], match)
     else:
-        import cv2
-
-        raw = _read_image(path, cv2.IMREAD_UNCHANGED)
+        raw = _read_image(path, match=match)
         if raw.ndim != 2 or raw.dtype != np.uint16:
-            raise SceneError(f"{path}: depth PNG must be single-channel uint16, got {raw.dtype} "
-                             f"with {1 if raw.ndim == 2 else raw.shape[2]} channels")
+            raise check._fail(path, f"depth PNG must be single-channel uint16, got {raw.dtype} "
+                                    f"with {1 if raw.ndim == 2 else raw.shape[2]} channels")
         depth = raw.astype(np.float64) / depth_scale
-    if np.any(depth < 0):
-        raise SceneError(f"{path}: depth has negative values")
-    if not np.any(depth > 0):
-        raise SceneError(f"{path}: depth is all zero (no valid pixel)")
-    return depth
+    return check.check_depth_metres(depth, path)
 
 
-def _read_mask(path: Path) -> np.ndarray:
-    import cv2
-
-    raw = _read_image(path, cv2.IMREAD_UNCHANGED)
+def _read_mask(path: Path, match: tuple[Path, int, int] | None = None) -> np.ndarray:
+    raw = _read_image(path, match=match)
     if raw.ndim != 2 or raw.dtype not in (np.uint8, np.uint16):
-        raise SceneError(f"{path}: mask must be a single-channel uint8/uint16 label image")
-    if not np.any(raw):
-        raise SceneError(f"{path}: mask is empty (every pixel is 0 = background)")
+        raise check._fail(path, "mask must be a single-channel uint8/uint16 label image")
+    check.check_mask_ids(raw, path)
     return raw.astype(np.int64)
 
 
 def _find_companion(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path | None:
     for suffix in suffixes:
         candidate = folder / f"{stem}{suffix}"
-        if candidate.exists():
+        if check.is_present(candidate):   # a FIFO or broken link is reported, not skipped
             return candidate
     return None
 
 
 def _read_state(root: Path, state: str, cameras: dict | None, depth_scale: float,
-                warnings: list[str]) -> list[Frame]:
+                warnings: list[str], budget: _PixelBudget | None = None) -> list[Frame]:
     state_dir = root / state
     if not state_dir.is_dir():
-        raise SceneError(f"{state_dir}: missing state folder (a scene needs start/ and end/)")
+        raise check._fail(state_dir, "missing state folder (a scene needs start/ and end/)")
     rgb_dir = state_dir / "rgb"
     if not rgb_dir.is_dir():
-        raise SceneError(f"{rgb_dir}: missing rgb/ folder")
+        raise check._fail(rgb_dir, "missing rgb/ folder")
     image_paths = sorted(p for p in rgb_dir.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
     if not image_paths:
-        raise SceneError(f"{rgb_dir}: no images (.png/.jpg)")
+        raise check._fail(rgb_dir, "no images (.png/.jpg)")
+    if len(image_paths) > check.MAX_IMAGES_PER_STATE:
+        raise check._fail(rgb_dir, f"{len(image_paths)} images, more than the limit of "
+                                   f"{check.MAX_IMAGES_PER_STATE} per state")
     if len(image_paths) > MAX_VIEWS_PER_STATE:
         warnings.append(f"{rgb_dir}: {len(image_paths)} images; 1-{MAX_VIEWS_PER_STATE} per state "
                         f"is the supported range, all are used")
@@ -218,7 +222,7 @@ def _read_state(root: Path, state: str, cameras: dict | None, depth_scale: float
     entries = cameras.get(state, []) if cameras else []
     frames = []
     for index, rgb_path in enumerate(image_paths):
-        rgb = _read_rgb(rgb_path)
+        rgb = _read_rgb(rgb_path, budget)
         height, width = rgb.shape[:2]
         frame = Frame(state=state, index=index, rgb_path=rgb_path, rgb=rgb)
         if depth_dir.is_dir():
@@ -226,7 +230,7 @@ def _read_state(root: Path, state: str, cameras: dict | None, depth_scale: float
             if depth_path is None:
                 raise SceneError(f"{depth_dir}: no depth for {rgb_path.name} "
                                  f"(expected {rgb_path.stem}.png or {rgb_path.stem}.npy)")
-            frame.depth = _read_depth(depth_path, depth_scale)
+            frame.depth = _read_depth(depth_path, depth_scale, (rgb_path, width, height))
             frame.depth_path = depth_path
             if frame.depth.shape != (height, width):
                 raise SceneError(f"{depth_path}: size {frame.depth.shape[1]}x{frame.depth.shape[0]} "
@@ -235,7 +239,7 @@ def _read_state(root: Path, state: str, cameras: dict | None, depth_scale: float
             mask_path = _find_companion(mask_dir, rgb_path.stem, (".png",))
             if mask_path is None:
                 raise SceneError(f"{mask_dir}: no mask for {rgb_path.name} (expected {rgb_path.stem}.png)")
-            frame.mask = _read_mask(mask_path)
+            frame.mask = _read_mask(mask_path, (rgb_path, width, height))
             frame.mask_path = mask_path
             if frame.mask.shape != (height, width):
                 raise SceneError(f"{mask_path}: size {frame.mask.shape[1]}x{frame.mask.shape[0]} "
@@ -279,7 +283,10 @@ def write_json_atomic(path: str | Path, data: Any) -> None:
 
 
 def write_bytes_atomic(path: str | Path, payload: bytes) -> None:
-    """Write bytes atomically: readers see either the old file or the complete new one."""
+    """Write bytes atomically: readers see either the old file or the complete new one. The file
+    gets the permissions the umask allows (``0o666 & ~umask``), like a plainly created file."""
+    from sparseart.io.outputs import file_mode
+
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
@@ -287,6 +294,7 @@ def write_bytes_atomic(path: str | Path, payload: bytes) -> None:
         with os.fdopen(handle, "wb") as stream:
             stream.write(payload)
             stream.flush()
+            os.fchmod(stream.fileno(), file_mode())
             os.fsync(stream.fileno())
         os.replace(temp_name, path)
     except BaseException:

@@ -26,8 +26,10 @@ becomes ``PartSpec.joint_type`` (the fitter then skips classification) only when
 typed the part agrees (share >= ``type_agreement``) and their mean confidence >= ``type_confidence``.
 
 Failure: no scene images or masks, a service failure (no server, timeout, HTTP error after
-retries) or no valid answer after ``answer_retries`` re-asks -> the rule-based labeler runs
-instead and the result carries a warning naming the cause. Answers are cached per scene content,
+retries, an oversized or over-deep response) or no valid answer after ``answer_retries`` re-asks
+-> the rule-based labeler runs instead and the result carries a warning naming the cause. Any
+other exception on the VLM path (an answer shaped so that a check trips over it) falls back the
+same way, its type named in the warning. Answers are cached per scene content,
 so the pipeline's second call (unposed scenes: label, align, label again) sends no new requests.
 """
 from __future__ import annotations
@@ -139,8 +141,12 @@ class VlmLabeler:
             if asked["problems"]:
                 labels.warnings.append(f"VLM: {len(asked['problems'])} invalid answer(s) ignored or re-asked "
                                        f"(first: {self.client.redact(asked['problems'][0])})")
-        except VlmError as error:
-            cause = self.client.redact(str(error))
+        except Exception as error:  # noqa: BLE001 - any failure of the VLM path falls back to the rules
+            # VlmError: the service or its answers; anything else (a RecursionError, a TypeError
+            # on an odd answer shape, a MemoryError) is reported with its type, never raised.
+            detail = " ".join(str(error).split())[:200]
+            cause = self.client.redact(detail if isinstance(error, VlmError)
+                                       else f"{type(error).__name__}: {detail}" if detail else type(error).__name__)
             self.last_report["fallback"] = cause
             fallback = self._fallback
             if fallback is None:

@@ -4,7 +4,14 @@
 and ``image_url`` parts (PNG data URLs), ``temperature`` 0 and ``response_format`` ``json_object``.
 It works with hosted services (Bearer key) and local servers (no key: no ``Authorization`` header).
 Timeouts, connection errors, HTTP 429 and 5xx are retried with exponential backoff; any other
-4xx is not, and redirects are not followed. :func:`extract_json` pulls the JSON object out of an
+4xx is not, and redirects are not followed.
+
+Limits (a misbehaving server cannot hang or exhaust the process): every attempt has ONE total
+deadline of ``timeout`` seconds covering connect, TLS, headers and body (a watchdog shuts the
+socket down when it passes, so a server dripping a byte a second cannot extend it); a response
+body over ``MAX_BODY_BYTES`` is refused; JSON (the response and the answer inside it) nested more
+than ``MAX_JSON_DEPTH`` levels, ``NaN``/``Infinity`` literals and numbers too large for a float are
+refused; a bool is never a number. :func:`extract_json` pulls the JSON object out of an
 answer (bare, in a ```json fence, or after prose); :func:`validate_json` checks it against the
 subset of JSON Schema the prompt schemas use.
 
@@ -16,9 +23,11 @@ from __future__ import annotations
 
 import http.client
 import json
+import math
 import os
 import re
 import socket
+import threading
 import time
 import urllib.error
 import urllib.parse
@@ -31,6 +40,8 @@ ENV_KEY = "SPARSEART_VLM_API_KEY"
 ENV_OPENAI_KEY = "OPENAI_API_KEY"
 LOCAL_HOSTS = ("localhost", "127.0.0.1", "::1")
 MAX_ANSWER_CHARS = 200_000
+MAX_BODY_BYTES = 4 * 2**20      # a chat-completions response with a JSON answer is a few KiB
+MAX_JSON_DEPTH = 32             # the deepest expected document (response + answer) has 5 levels
 SNIPPET_CHARS = 160
 
 
@@ -56,7 +67,8 @@ class VlmClient:
         api_key: Bearer key; default ``$SPARSEART_VLM_API_KEY``, else ``$OPENAI_API_KEY`` but only
             when the base URL itself came from ``$OPENAI_BASE_URL`` or points at api.openai.com (an
             OpenAI key is not sent to some other server). None or "" = no Authorization header.
-        timeout: seconds per request (connect + read).
+        timeout: seconds per attempt, in total (connect + TLS + headers + body), enforced by a
+            watchdog rather than per socket read.
         max_retries: extra attempts after a timeout, connection error, 429 or 5xx.
         backoff: seconds before the first retry, doubled each retry, capped at ``max_backoff``
             (a 429's numeric Retry-After is honoured up to ``max_backoff``).
@@ -104,7 +116,7 @@ class VlmClient:
         handlers: list[urllib.request.BaseHandler] = [_NoRedirect()]  # a redirect would carry the key elsewhere
         if local:
             handlers.append(urllib.request.ProxyHandler({}))  # never proxy a local server
-        self._opener = urllib.request.build_opener(*handlers)
+        self._handlers = handlers
 
     def __repr__(self) -> str:
         return (f"VlmClient(endpoint={self.endpoint!r}, model={self.model!r}, "
@@ -149,9 +161,13 @@ class VlmClient:
         attempt = 0
         while True:
             request = urllib.request.Request(self.endpoint, data=payload, headers=headers, method="POST")
+            deadline = _Deadline(self.timeout)
             try:
-                with self._opener.open(request, timeout=self.timeout) as response:
-                    body = response.read()
+                try:
+                    with self._open(request, deadline) as response:
+                        body = _read_capped(response, deadline)
+                finally:
+                    deadline.cancel()
                 return self._content(body)
             except urllib.error.HTTPError as error:
                 code = int(error.code)
@@ -160,10 +176,13 @@ class VlmClient:
                 error.close()
                 if not (code == 429 or code >= 500) or attempt >= self.max_retries:
                     raise VlmServiceError(self._tried(cause, attempt)) from None
+            except _BodyTooLarge as error:
+                raise VlmServiceError(self._tried(str(error), attempt)) from None
             except (urllib.error.URLError, TimeoutError, socket.timeout, ConnectionError,
-                    http.client.HTTPException, OSError) as error:
+                    http.client.HTTPException, OSError, ValueError) as error:
                 retry_after = None
-                cause = self._network_cause(error)
+                cause = (f"timed out (no complete answer within {self.timeout:g} s)" if deadline.fired
+                         else self._network_cause(error))
                 if attempt >= self.max_retries:
                     raise VlmServiceError(self._tried(cause, attempt)) from None
             delay = min(self.max_backoff, self.backoff * 2 ** attempt)
@@ -171,6 +190,13 @@ class VlmClient:
                 delay = min(self.max_backoff, max(delay, retry_after))
             self._sleep(delay)
             attempt += 1
+
+    def _open(self, request: urllib.request.Request, deadline: "_Deadline"):
+        """Open ``request`` with this client's handlers plus ones that put every socket of the
+        attempt under ``deadline``."""
+        opener = urllib.request.build_opener(*self._handlers, _DeadlineHTTPHandler(deadline),
+                                             _DeadlineHTTPSHandler(deadline))
+        return opener.open(request, timeout=max(0.001, deadline.remaining()))
 
     def ask_json(self, text: str, image_urls: Sequence[str] = (),
                  schema: dict[str, Any] | None = None) -> dict[str, Any]:
@@ -219,14 +245,15 @@ class VlmClient:
 
     def _content(self, body: bytes) -> str:
         try:
-            data = json.loads(body.decode("utf-8"))
+            data = loads_strict(body.decode("utf-8"))
             content = data["choices"][0]["message"]["content"]
-        except (UnicodeDecodeError, json.JSONDecodeError, KeyError, IndexError, TypeError):
+        except (UnicodeDecodeError, ValueError, KeyError, IndexError, TypeError, RecursionError):
             snippet = " ".join(body[:SNIPPET_CHARS].decode("utf-8", "replace").split())
             raise VlmAnswerError(self.redact(f"VLM service at {self.endpoint}: not a chat-completions "
                                              f"response: {snippet!r}")) from None
-        if isinstance(content, list):  # content parts
-            content = "".join(part.get("text", "") for part in content if isinstance(part, dict))
+        if isinstance(content, list):  # content parts; only their string "text" fields count
+            content = "".join(part["text"] for part in content
+                              if isinstance(part, dict) and isinstance(part.get("text"), str))
         if not isinstance(content, str) or not content.strip():
             raise VlmAnswerError(f"VLM service at {self.endpoint}: empty answer")
         return content
@@ -242,9 +269,164 @@ class _NoRedirect(urllib.request.HTTPRedirectHandler):
 
 def _retry_after(value: str | None) -> float | None:
     try:
-        return max(0.0, float(value)) if value is not None else None
+        delay = max(0.0, float(value)) if value is not None else None
     except ValueError:
         return None  # an HTTP date: fall back to the exponential backoff
+    return delay if delay is None or math.isfinite(delay) else None
+
+
+# ---------------------------------------------------------------------- deadline and size cap
+
+
+class _BodyTooLarge(Exception):
+    pass
+
+
+class _Deadline:
+    """One attempt's total time budget. A daemon timer shuts down every socket attached to it when
+    the time is up, which ends any blocking connect/recv at once (a server dripping one byte per
+    second resets per-read timeouts, not this). Sockets are attached as duplicates of their
+    descriptors, so a TLS wrapper that detaches the original does not escape the watchdog."""
+
+    def __init__(self, seconds: float) -> None:
+        self.expires = time.monotonic() + seconds
+        self.fired = False
+        self._sockets: list[socket.socket] = []
+        self._lock = threading.Lock()
+        self._timer = threading.Timer(seconds, self._fire)
+        self._timer.daemon = True
+        self._timer.start()
+
+    def remaining(self) -> float:
+        return max(0.0, self.expires - time.monotonic())
+
+    def attach(self, sock: socket.socket) -> None:
+        try:
+            duplicate = sock.dup()
+        except OSError:
+            return
+        with self._lock:
+            self._sockets.append(duplicate)
+            if self.fired:
+                _shutdown(duplicate)
+
+    def _fire(self) -> None:
+        with self._lock:
+            self.fired = True
+            for sock in self._sockets:
+                _shutdown(sock)
+
+    def cancel(self) -> None:
+        self._timer.cancel()
+        with self._lock:
+            for sock in self._sockets:
+                try:
+                    sock.close()
+                except OSError:
+                    pass
+            self._sockets.clear()
+
+
+def _shutdown(sock: socket.socket) -> None:
+    try:
+        sock.shutdown(socket.SHUT_RDWR)
+    except OSError:
+        pass
+
+
+def _deadline_connection(base: type, deadline: _Deadline):
+    """An ``http_class`` for urllib's ``do_open``: ``base`` whose TCP socket joins ``deadline``
+    as soon as it exists (before any TLS handshake) with its connect timeout cut to what is left."""
+
+    def make(host: str, **kwargs):
+        connection = base(host, **kwargs)
+        create = connection._create_connection
+
+        def create_under_deadline(address, timeout=None, source_address=None):
+            sock = create(address, max(0.001, deadline.remaining()), source_address)
+            deadline.attach(sock)
+            return sock
+
+        connection._create_connection = create_under_deadline
+        return connection
+
+    return make
+
+
+class _DeadlineHTTPHandler(urllib.request.HTTPHandler):
+    def __init__(self, deadline: _Deadline) -> None:
+        super().__init__()
+        self._deadline = deadline
+
+    def http_open(self, req):  # noqa: ANN001 - urllib's signature
+        return self.do_open(_deadline_connection(http.client.HTTPConnection, self._deadline), req)
+
+
+class _DeadlineHTTPSHandler(urllib.request.HTTPSHandler):
+    def __init__(self, deadline: _Deadline) -> None:
+        super().__init__()
+        self._deadline = deadline
+
+    def https_open(self, req):  # noqa: ANN001 - urllib's signature
+        return self.do_open(_deadline_connection(http.client.HTTPSConnection, self._deadline), req,
+                            context=self._context)
+
+
+def _read_capped(response, deadline: _Deadline) -> bytes:
+    """The response body, at most ``MAX_BODY_BYTES``; raises TimeoutError when the deadline cut
+    it short and _BodyTooLarge beyond the cap (a declared Content-Length is checked first)."""
+    declared = response.headers.get("Content-Length") if response.headers else None
+    if declared is not None and declared.strip().isdigit() and int(declared) > MAX_BODY_BYTES:
+        raise _BodyTooLarge(f"response body of {int(declared)} bytes exceeds the limit of {MAX_BODY_BYTES}")
+    body = response.read(MAX_BODY_BYTES + 1)
+    if deadline.fired:
+        raise TimeoutError("deadline passed while reading the response")
+    if len(body) > MAX_BODY_BYTES:
+        raise _BodyTooLarge(f"response body exceeds the limit of {MAX_BODY_BYTES} bytes")
+    return body
+
+
+# ---------------------------------------------------------------------- strict JSON
+
+
+class _JsonLimit(ValueError):
+    pass
+
+
+def _reject_constant(name: str):
+    raise _JsonLimit(f"non-finite number {name}")
+
+
+def _parse_int(text: str) -> int | float:
+    return int(text) if len(text.lstrip("-")) <= 18 else float(text)   # huge -> float (maybe inf)
+
+
+def _parse_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise _JsonLimit(f"number {text[:20]} is too large")
+    return value
+
+
+def json_depth(text: str) -> int:
+    """Maximum ``[``/``{`` nesting of JSON text (strings skipped), without parsing. O(n)."""
+    from sparseart.io.validate import json_nesting_depth
+
+    return json_nesting_depth(text.encode("utf-8", "surrogatepass"))
+
+
+def loads_strict(text: str, max_depth: int = MAX_JSON_DEPTH):
+    """``json.loads`` that refuses nesting deeper than ``max_depth``, NaN/Infinity and numbers
+    beyond float range. Raises ValueError (incl. json.JSONDecodeError)."""
+    if json_depth(text) > max_depth:
+        raise _JsonLimit(f"JSON nested more than {max_depth} levels")
+    try:
+        value = json.loads(text, parse_constant=_reject_constant, parse_int=_parse_int, parse_float=_parse_float)
+    except RecursionError:
+        raise _JsonLimit(f"JSON nested more than {max_depth} levels") from None
+    if isinstance(value, float) and not math.isfinite(value):
+        raise _JsonLimit("non-finite number")
+    return value
 
 
 # ---------------------------------------------------------------------- answers
@@ -263,24 +445,39 @@ def extract_json(text: str) -> dict[str, Any]:
         VlmAnswerError: no JSON object found (the message quotes the answer's start).
     """
     text = text[:MAX_ANSWER_CHARS]
+    if json_depth(text) > MAX_JSON_DEPTH:
+        raise VlmAnswerError(f"answer nests brackets more than {MAX_JSON_DEPTH} levels deep")
     candidates = [text.strip(), *(m.group(1).strip() for m in _FENCE.finditer(text))]
     for candidate in candidates:
         try:
-            value = json.loads(candidate)
-        except json.JSONDecodeError:
+            value = loads_strict(candidate)
+        except ValueError:
             continue
-        if isinstance(value, dict):
+        if isinstance(value, dict) and _all_finite(value):
             return value
-    decoder = json.JSONDecoder()
+    decoder = json.JSONDecoder(parse_constant=_reject_constant, parse_int=_parse_int, parse_float=_parse_float)
     for match in re.finditer(r"\{", text):
         try:
             value, _ = decoder.raw_decode(text, match.start())
-        except json.JSONDecodeError:
+        except (ValueError, RecursionError):
             continue
-        if isinstance(value, dict):
+        if isinstance(value, dict) and _all_finite(value):
             return value
     snippet = " ".join(text.split())[:80]
     raise VlmAnswerError(f"answer holds no JSON object: {snippet!r}")
+
+
+def _all_finite(value: Any, depth: int = 0) -> bool:
+    """No float in ``value`` is NaN or infinite (a huge integer became ``inf`` when parsed)."""
+    if depth > MAX_JSON_DEPTH:
+        return False
+    if isinstance(value, float):
+        return math.isfinite(value)
+    if isinstance(value, dict):
+        return all(_all_finite(v, depth + 1) for v in value.values())
+    if isinstance(value, list):
+        return all(_all_finite(v, depth + 1) for v in value)
+    return True
 
 
 _TYPES: dict[str, Callable[[Any], bool]] = {
@@ -288,8 +485,8 @@ _TYPES: dict[str, Callable[[Any], bool]] = {
     "array": lambda v: isinstance(v, list),
     "string": lambda v: isinstance(v, str),
     "integer": lambda v: ((isinstance(v, int) and not isinstance(v, bool))
-                          or (isinstance(v, float) and v.is_integer())),
-    "number": lambda v: isinstance(v, (int, float)) and not isinstance(v, bool),
+                          or (isinstance(v, float) and math.isfinite(v) and v.is_integer())),
+    "number": lambda v: (isinstance(v, int) and not isinstance(v, bool)) or (isinstance(v, float) and math.isfinite(v)),
     "boolean": lambda v: isinstance(v, bool),
     "null": lambda v: v is None,
 }
@@ -303,11 +500,14 @@ def validate_json(value: Any, schema: dict[str, Any], path: str = "$") -> list[s
     Supports the subset of JSON Schema the prompt schemas use: ``type`` (name or list),
     ``properties``, ``required``, ``additionalProperties`` (bool or schema), ``items`` (one schema),
     ``enum``, ``minimum``/``maximum``, ``minItems``/``maxItems``. As in JSON Schema draft 6+, an
-    integral float (2.0) is an integer; a bool is not a number. O(size of value).
+    integral float (2.0) is an integer; a bool is not a number, nor is NaN or an infinity. Nesting
+    deeper than ``MAX_JSON_DEPTH`` is a problem, not a RecursionError. O(size of value).
 
     Raises:
         ValueError: the schema uses a keyword outside the subset (a schema bug, not an answer bug).
     """
+    if path.count(".") + path.count("[") > MAX_JSON_DEPTH:
+        return [f"{path}: nested more than {MAX_JSON_DEPTH} levels"]
     unknown = set(schema) - SUPPORTED_KEYWORDS
     if unknown:
         raise ValueError(f"schema at {path} uses unsupported keyword(s) {sorted(unknown)}")
