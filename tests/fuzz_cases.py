@@ -745,3 +745,39 @@ VLM_MODES = ["drip_body", "drip_headers", "silent", "huge_declared", "huge_body"
              "list_content_ints", "list_content_nested", "content_null", "content_number", "choices_dict",
              "choices_empty", "message_list", "not_utf8", "reset", "html"]
 SLOW_VLM_MODES = {"drip_body", "drip_headers", "silent", "huge_declared"}
+
+
+# ---------------------------------------------------------------------- scenes with nothing articulated
+
+
+def write_plain_scene(root: Path, depth_of: Callable[[str], np.ndarray], masks_of: Callable[[str], np.ndarray] | None = None,
+                      width: int = 160, height: int = 120) -> Path:
+    """A posed one-view scene from depth maps (metres) per state: walls, noise, identical states."""
+    K = [[150.0, 0.0, width / 2], [0.0, 150.0, height / 2], [0.0, 0.0, 1.0]]
+    cameras: dict[str, Any] = {"convention": "opencv", "depth_scale": 1000.0}
+    for state in ("start", "end"):
+        for sub in ("rgb", "depth") + (("mask",) if masks_of else ()):
+            (root / state / sub).mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(root / state / "rgb/000.png"), np.full((height, width, 3), 128, np.uint8))
+        depth = np.clip(depth_of(state) * 1000.0, 0, 65535).astype(np.uint16)
+        cv2.imwrite(str(root / state / "depth/000.png"), depth)
+        if masks_of:
+            cv2.imwrite(str(root / state / "mask/000.png"), masks_of(state))
+        cameras[state] = [{"image": "rgb/000.png", "K": K, "cam_to_world": np.eye(4).tolist()}]
+    (root / "cameras.json").write_text(json.dumps(cameras))
+    return root
+
+
+def nothing_articulated() -> dict[str, Callable[[Path], Path]]:
+    """Scenes in which nothing moves: a flat wall (still, with 1 mm depth noise, with masks) and
+    pure depth noise. The answer must be no joint, or joints at confidence < 0.2 with a warning."""
+    rng = np.random.default_rng(0)
+    shape = (120, 160)
+    halves = lambda state: np.where(np.arange(shape[1])[None, :] < shape[1] // 2, 1, 2).repeat(shape[0], 0).astype(np.uint8)  # noqa: E731
+    return {
+        "wall_still": lambda root: write_plain_scene(root, lambda s: np.full(shape, 1.5)),
+        "wall_still_masks": lambda root: write_plain_scene(root, lambda s: np.full(shape, 1.5), halves),
+        "wall_noise_1mm": lambda root: write_plain_scene(root, lambda s: 1.5 + rng.normal(0, 0.001, shape)),
+        "wall_noise_1mm_masks": lambda root: write_plain_scene(root, lambda s: 1.5 + rng.normal(0, 0.001, shape), halves),
+        "depth_noise": lambda root: write_plain_scene(root, lambda s: rng.uniform(0.5, 3.0, shape)),
+    }

@@ -51,6 +51,7 @@ from typing import Any, Iterator
 
 import numpy as np
 
+from sparseart.geometry.budget import POINT_BUDGET, subsample_to_budget
 from sparseart.types import LabelledCloud, SceneError
 
 # ---------------------------------------------------------------------- limits (documented)
@@ -70,7 +71,7 @@ DEPTH_RANGE_METRES = (1e-6, 1e7)      # a positive depth outside this is an erro
 MAX_COORDINATE = 1e7                  # |camera position| and |cloud coordinate| in scene units
 FOCAL_RANGE = (0.05, 500.0)           # fx, fy / max(width, height): 175 deg ... 0.1 deg of view
 MIN_CLOUD_POINTS = 10                 # per state (the labelers need at least this many)
-CLOUD_POINT_BUDGET = 1_000_000        # run_clouds: larger clouds are subsampled to this (seeded)
+CLOUD_POINT_BUDGET = POINT_BUDGET     # run_clouds: larger clouds are subsampled to this (seeded)
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 JPEG_SIGNATURE = b"\xff\xd8"
@@ -558,8 +559,8 @@ _CLOUD_FIELDS = ("points", "colors", "segment", "frame_index", "pixel_index", "c
 def validate_clouds(start: Any, end: Any, budget: int = CLOUD_POINT_BUDGET,
                     seed: int = 0) -> tuple[LabelledCloud, LabelledCloud]:
     """Check the clouds given to :func:`sparseart.run_clouds`; return them (subsampled to
-    ``budget`` points each when larger, with a seeded random subset, so 10 million points behave
-    like ``budget``).
+    ``budget`` points each when larger, :func:`sparseart.geometry.budget.subsample_to_budget`, so
+    10 million points behave like ``budget``).
 
     Checks per cloud: a :class:`LabelledCloud`; every field a numpy array (not a list) of one
     length N >= ``MIN_CLOUD_POINTS``; ``points`` (N, 3) real and finite with
@@ -572,15 +573,8 @@ def validate_clouds(start: Any, end: Any, budget: int = CLOUD_POINT_BUDGET,
     Raises:
         SceneError: one line naming the state and the field, e.g. ``start.points: row 17 is not finite``.
     """
-    checked = []
-    for name, cloud in (("start", start), ("end", end)):
-        cloud = _validate_cloud(name, cloud)
-        if len(cloud) > budget:
-            from sparseart.geometry.sampling import random_subset
-
-            cloud = cloud.subset(random_subset(len(cloud), budget, np.random.default_rng(seed)))
-        checked.append(cloud)
-    return checked[0], checked[1]
+    checked = [_validate_cloud(name, cloud) for name, cloud in (("start", start), ("end", end))]
+    return subsample_to_budget(checked[0], budget, seed), subsample_to_budget(checked[1], budget, seed + 1)
 
 
 def _validate_cloud(name: str, cloud: Any) -> LabelledCloud:
