@@ -251,6 +251,9 @@ class Articulation:
     """The pipeline's result; serialised to articulation.json (design section 3).
 
     start_cloud / end_cloud / labels are kept for exports (PLY, pictures) and robot code.
+    registration: how the views and the states were brought into one frame (per view: registered,
+        how, inliers, residual, scale; per state alignment: method, inliers, rmse; see
+        :func:`sparseart.align.scene.registration_report`); empty when unknown.
     """
 
     frame_kind: str
@@ -262,6 +265,7 @@ class Articulation:
     start_cloud: LabelledCloud | None = None
     end_cloud: LabelledCloud | None = None
     labels: PartLabels | None = None
+    registration: dict = field(default_factory=dict)
 
     @property
     def joints(self) -> list[tuple[PartResult, JointEstimate]]:

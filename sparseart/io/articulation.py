@@ -72,6 +72,8 @@ def articulation_to_dict(result: Articulation) -> dict[str, Any]:
         "stages": [{"name": s.name, "ran": s.ran, "seconds": round(s.seconds, 4), "why": s.why}
                    for s in result.stages],
         "warnings": list(result.warnings),
+        # how the views and states were registered (align.scene.registration_report); {} when unknown
+        "registration": _jsonable(getattr(result, "registration", None) or {}),
     }
 
 
