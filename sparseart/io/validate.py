@@ -513,21 +513,29 @@ def read_npy_file(path: Path, kinds: str = "f", max_pixels: int = MAX_IMAGE_PIXE
 
 
 def check_depth_metres(depth: np.ndarray, path: Path | str) -> np.ndarray:
-    """Depth in metres: non-finite values become 0 (invalid); negatives, positive values outside
-    ``DEPTH_RANGE_METRES`` and an all-zero map are errors. Returns (H, W) float64. O(H W)."""
+    """Depth in metres: non-finite values and positive values below ``DEPTH_RANGE_METRES[0]``
+    (sub-micron: rounding residue, not a measurement) become 0 (invalid); negatives, values above
+    ``DEPTH_RANGE_METRES[1]`` and a map without any valid pixel are errors. Returns (H, W)
+    float64. O(H W)."""
+    low, high = DEPTH_RANGE_METRES
     with np.errstate(all="ignore"):
         depth = np.asarray(depth, dtype=np.float64)
         depth = np.where(np.isfinite(depth), depth, 0.0)
         if np.any(depth < 0):
             raise _fail(path, "depth has negative values")
-        positive = depth[depth > 0]
-    if positive.size == 0:
-        raise _fail(path, "depth is all zero (no valid pixel)")
-    low, high = DEPTH_RANGE_METRES
-    smallest, largest = float(positive.min()), float(positive.max())
-    if smallest < low or largest > high:
-        raise _fail(path, f"depth values {smallest:g} .. {largest:g} m lie outside the plausible range "
-                          f"{low:g} .. {high:g} m (check depth_scale and the depth unit)")
+        positive = depth > 0
+        if not np.any(positive):
+            raise _fail(path, "depth is all zero (no valid pixel)")
+        largest = float(depth.max())
+        if largest > high:
+            raise _fail(path, f"depth values up to {largest:g} m lie beyond the plausible range (<= {high:g} m; "
+                              f"check depth_scale and the depth unit)")
+        tiny = positive & (depth < low)
+        if np.any(tiny):
+            if np.all(tiny[positive]):
+                raise _fail(path, f"every depth value is below {low:g} m (largest {largest:g} m; check depth_scale "
+                                  f"and the depth unit)")
+            depth = np.where(tiny, 0.0, depth)
     return depth
 
 
