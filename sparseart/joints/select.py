@@ -11,8 +11,13 @@ above zero and a large BIC gap, so it is revolute.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from sparseart.joints.config import FitConfig
+    from sparseart.joints.optimise import ModelFit
 
 #: Free parameters per model: revolute = axis (2) + pivot (2) + angle (1); prismatic = axis (2) + distance (1).
 PARAMETER_COUNT = {"revolute": 5, "prismatic": 3}
@@ -77,3 +82,21 @@ def select_joint_type(
     else:
         choice, reason = "prismatic", f"BIC prefers prismatic by {bic_revolute - bic_prismatic:.3g}"
     return TypeDecision(choice, bic_revolute, bic_prismatic, significant, reason)
+
+
+def choose_type(revolute: ModelFit, prismatic: ModelFit, config: FitConfig) -> tuple[TypeDecision, dict]:
+    """``select_joint_type`` on two fits of the same part: RSS of the point-to-plane Chamfer
+    distances of the shared Chamfer sample, each truncated at the smaller matching clip tau;
+    effective count = distances / ``bic_correlation_factor``; the revolute angle and its Jacobian
+    sigma. Returns the decision and its diagnostics (BIC scores, reason, angle z). O(c)."""
+    tau = min(revolute.tau, prismatic.tau)
+    rss = {fit.kind: float(np.sum(np.minimum(fit.chamfer_distances, tau) ** 2)) for fit in (revolute, prismatic)}
+    count = revolute.chamfer_distances.size / config.bic_correlation_factor
+    angle = float(revolute.x[4])
+    angle_sigma = float(np.sqrt(max(revolute.covariance[4, 4], 0.0)))
+    decision = select_joint_type(rss["revolute"], rss["prismatic"], count, angle, angle_sigma,
+                                 z=config.angle_z, min_angle=np.radians(config.min_angle_deg))
+    diagnostics = {"bic_revolute": decision.bic_revolute, "bic_prismatic": decision.bic_prismatic,
+                   "type_reason": decision.reason, "angle_significant": decision.angle_significant,
+                   "revolute_angle_z": abs(angle) / angle_sigma if angle_sigma > 0 else float("inf")}
+    return decision, diagnostics

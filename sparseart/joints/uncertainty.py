@@ -18,19 +18,27 @@ cluster-robust "sandwich" covariance to first order. Chamfer neighbours stay fro
 Cost: O(R p^2 + K p^3) for R residual rows and p <= 5 parameters plus an O(R K) block
 assignment -- no extra residual evaluations (milliseconds).
 
-How ``fit_joint`` states its sigma (variances added): Jacobian covariance (unchanged, also used by
-the type test) + this block jackknife + the spread of re-matched half-sample refits
-(``fit._fit_model.half_sample_covariance``: sees the correspondence noise of independent samples)
-+ a calibrated floor ``fit.UNCERTAINTY_FLOOR`` x (pair residual / part radius). Measured on the 16
+How ``fit_joint`` states its sigma (``stated_covariance``, variances added): Jacobian covariance
+(unchanged, also used by the type test) + this block jackknife (on the optimum's own rows) + the
+spread of re-matched half-sample refits warm-started at the optimum (``half_sample_covariance``:
+sees the correspondence noise of independent samples; one step each) + a calibrated floor
+``UNCERTAINTY_FLOOR`` x (pair residual / part radius). Measured on the 16
 PartNet objects (``benchmarks/results/uncertainty_calibration.txt``): the two resampling terms are
 small next to the true errors (axis 0.02-0.25 deg and 0.03-0.23 deg against errors up to 2.7 deg),
 i.e. most of the real error is a bias shared by every subset, which no resampling can see; the
-floor carries most of the correction. ``inlier_fraction`` below feeds the outlier warning.
+floor carries most of the correction.
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+from sparseart.joints.config import UNCERTAINTY_FLOOR
+from sparseart.joints.optimise import ModelFit, Problem, one_to_one_pairs, pair_weights
+from sparseart.joints.part import MIN_POINTS, Sample
+
+__all__ = ["UNCERTAINTY_FLOOR", "axis_sigma_deg", "block_jackknife_covariance", "floor_covariance",
+           "half_sample_covariance", "prismatic_sigma", "resample_covariance", "revolute_sigma", "spatial_blocks"]
 
 
 def spatial_blocks(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -82,34 +90,100 @@ def block_jackknife_covariance(jacobian: np.ndarray, residual: np.ndarray, block
     return (count - 1) / count * deviation.T @ deviation, count
 
 
-def inlier_fraction(start: np.ndarray, end: np.ndarray, rotation: np.ndarray, translation: np.ndarray,
-                    spacing_quantile: float = 0.1, tolerance: float = 4.0) -> float:
-    """Fraction of start points (n, 3) that land on the end cloud (m, 3) under the fitted motion.
-
-    "On" = an end point within ``tolerance`` x the surface spacing, the ``spacing_quantile``
-    quantile of the start cloud's nearest-neighbour distances (a low quantile: scattered outliers
-    are sparse and must not set the scale). Surface points seen in both states count, points of a
-    region seen in one state only and scattered outliers do not. O((n + m) log m).
-    """
-    if len(start) < 2 or len(end) < 1:
-        return 0.0
-    own = cKDTree(start).query(start, k=2)[0][:, 1]
-    radius = tolerance * max(float(np.quantile(own, spacing_quantile)), 1e-12)
-    distance = cKDTree(end).query(start @ rotation.T + translation)[0]
-    return float(np.mean(distance <= radius))
+def resample_covariance(fit: ModelFit, blocks: int, rng: np.random.Generator) -> tuple[np.ndarray, int]:
+    """Spatial block-jackknife covariance of a converged fit and the number of blocks used; zeros
+    when ``blocks`` < 2. Every residual row is assigned to the block of its point in the start
+    frame (end-state Chamfer points mapped back by the fitted motion). O(R blocks + R p^2)."""
+    p = fit.jacobian.shape[1]
+    if blocks < 2:
+        return np.zeros((p, p)), 0
+    locations = [fit.problem.pair_start]
+    chamfer = fit.problem.chamfer
+    if chamfer is not None:
+        locations += [chamfer.start, (chamfer.end - fit.translation) @ fit.rotation]
+    block = spatial_blocks(np.concatenate(locations), blocks, rng)
+    return block_jackknife_covariance(fit.jacobian, fit.residual, np.repeat(block, 3))
 
 
-def scatter_fraction(points: np.ndarray, rng: np.random.Generator, neighbours: int = 10,
-                     max_points: int = 4000, threshold: float = 0.1) -> float:
-    """Fraction of points (n, 3) not lying on a surface or curve: the smallest eigenvalue of their
-    ``neighbours``-NN covariance exceeds ``threshold`` x the eigenvalue sum ("surface variation";
-    ~0 on a sampled surface or wire, ~0.2-0.3 for points scattered in a volume). Estimated on at
-    most ``max_points`` random points (neighbours from the whole cloud). O(n log n)."""
-    if len(points) <= neighbours:
-        return 0.0
-    pick = rng.choice(len(points), min(max_points, len(points)), replace=False)
-    _, index = cKDTree(points).query(points[pick], k=neighbours + 1)
-    local = points[index] - points[index].mean(axis=1, keepdims=True)
-    eigen = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", local, local))
-    variation = eigen[:, 0] / np.maximum(eigen.sum(axis=1), 1e-300)
-    return float(np.mean(variation > threshold))
+def half_sample_covariance(fit: ModelFit, sample: Sample, count: int, max_points: int,
+                           rng: np.random.Generator, normal_gate_deg: float = 45.0, tau_factor: float = 3.0,
+                           beta: float = 0.1, max_nfev: int = 8) -> np.ndarray:
+    """Spread of ``count`` warm-started refits on random halves (at most ``max_points`` per side)
+    of both states' matching and Chamfer samples: each half is re-matched one-to-one at the
+    optimum's motion (so the spread sees the correspondence noise of independent samples, which
+    no fixed set of pairs can) and solved from the optimum with its Chamfer neighbours frozen, for
+    at most ``max_nfev`` evaluations (one Levenberg-Marquardt step for p = 5). A subset holding a
+    fraction f of the points deviates from the full-data solution with about (1/f - 1) x the
+    variance of the full-data estimate (delete-d jackknife), so the covariance is f/(1-f) x the
+    mean outer product of the deviations. (p, p); zeros when ``count`` < 2 or the sample is too
+    small to halve. ``sample``: the matching sample the fit used. Cost per refit: one sparse
+    matching on m <= max_points points plus max_nfev residual evaluations on ~3m points."""
+    p = fit.x.size
+    if count < 2:
+        return np.zeros((p, p))
+    size = min(max(sample.size // 2, MIN_POINTS), max_points)
+    fraction = size / max(sample.size, 1)
+    if fraction >= 1.0:
+        return np.zeros((p, p))
+    centred = fit.model.recentred(fit.x)
+    rotation, translation = fit.rotation, fit.translation
+    normal_cos = float(np.cos(np.radians(normal_gate_deg)))
+    chamfer = fit.problem.chamfer
+    deviations = []
+    for _ in range(count):
+        half_start = rng.permutation(len(sample.start))[:size]
+        half_end = rng.permutation(len(sample.end))[:size]
+        start_h, end_h = sample.start[half_start], sample.end[half_end]
+        half = Sample(start_h, end_h, sample.start_normals[half_start], sample.end_normals[half_end],
+                      cKDTree(end_h), sample.spacing)
+        rows, cols, _ = one_to_one_pairs(start_h @ rotation.T + translation, half, tau_factor,
+                                         half.start_normals @ rotation.T, normal_cos)
+        if len(rows) < MIN_POINTS:
+            continue
+        half_chamfer = None
+        if chamfer is not None:
+            chamfer_size = max(min(min(len(chamfer.start), len(chamfer.end)) // 2, max_points), MIN_POINTS)
+            pick_start = rng.permutation(len(chamfer.start))[:chamfer_size]
+            pick_end = rng.permutation(len(chamfer.end))[:chamfer_size]
+            half_chamfer = Sample(chamfer.start[pick_start], chamfer.end[pick_end], chamfer.start_normals[pick_start],
+                                  chamfer.end_normals[pick_end], cKDTree(chamfer.end[pick_end]), chamfer.spacing)
+        problem = Problem(centred, start_h[rows], end_h[cols], pair_weights(fit.kind, start_h[rows], end_h[cols], beta),
+                          half_chamfer, fit.problem.alpha, fit.problem.loss, fit.problem.gate_normals,
+                          fit.problem.normal_cos)
+        refit = problem.solve(centred.x0, f_scale=fit.f_scale, max_nfev=max_nfev)
+        deviations.append(refit.x - centred.x0)
+    if len(deviations) < 2:
+        return np.zeros((p, p))
+    deviations = np.array(deviations)
+    return fraction / (1.0 - fraction) * deviations.T @ deviations / len(deviations)
+
+
+def floor_covariance(kind: str, residual: float, part_radius: float) -> np.ndarray:
+    """Diagonal covariance of the calibrated systematic floor (normalised units): axis tangents
+    and angle (rad) UNCERTAINTY_FLOOR x residual / part radius, pivot and distance
+    UNCERTAINTY_FLOOR x residual. Residual = RMS pair residual of the fit. O(1)."""
+    if not np.isfinite(residual):
+        residual = 0.0
+    angular = (UNCERTAINTY_FLOOR * residual / max(part_radius, 1e-12)) ** 2
+    linear = (UNCERTAINTY_FLOOR * residual) ** 2
+    if kind == "revolute":  # axis (2) split evenly, pivot (2) split evenly, angle
+        return np.diag([angular / 2, angular / 2, linear / 2, linear / 2, angular])
+    return np.diag([angular / 2, angular / 2, linear])
+
+
+def axis_sigma_deg(covariance: np.ndarray) -> float:
+    """1-sigma axis direction error (deg) from the two tangent variances."""
+    return float(np.degrees(np.sqrt(max(covariance[0, 0] + covariance[1, 1], 0.0))))
+
+
+def revolute_sigma(covariance: np.ndarray, scale: float) -> dict[str, float]:
+    """{"axis_deg", "origin" (input units), "angle" (rad)} of a revolute (5, 5) covariance."""
+    return {"axis_deg": axis_sigma_deg(covariance),
+            "origin": float(np.sqrt(max(covariance[2, 2] + covariance[3, 3], 0.0))) * scale,
+            "angle": float(np.sqrt(max(covariance[4, 4], 0.0)))}
+
+
+def prismatic_sigma(covariance: np.ndarray, scale: float, origin_sigma: float) -> dict[str, float]:
+    """{"axis_deg", "origin", "distance" (input units)} of a prismatic (3, 3) covariance."""
+    return {"axis_deg": axis_sigma_deg(covariance), "origin": float(origin_sigma),
+            "distance": float(np.sqrt(max(covariance[2, 2], 0.0))) * scale}

@@ -1,0 +1,178 @@
+"""When is a joint estimate unreliable whatever its stated sigma: warnings with codes, confidence.
+
+Every warning is a ``FitWarning`` (a ``WarningCode`` + the sentence users read); the confidence is
+lowered by codes, never by searching the text. ``JointEstimate.warnings`` keeps the sentences and
+``diagnostics["warning_codes"]`` the codes, in the same order. The thresholds are module constants
+shared with ``sparseart.bench.stability`` (it imports them to mark "unreliable" rows the same way).
+The warning functions are O(1) on the fit's summary numbers; ``scatter_fraction`` and
+``inlier_fraction`` measure the outlier test's two inputs.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+ILL_CONDITIONED = 1e6        # Jacobian condition number above which the fit is called ill-conditioned
+# Outliers: more than MAX_SCATTER_FRACTION of the cleaned points off any surface
+# (uncertainty.scatter_fraction) AND fewer than MIN_INLIER_FRACTION of the start points landing on
+# the end cloud under the fit (uncertainty.inlier_fraction). Either alone also fires on good fits
+# (thin shells scatter; partial overlap leaves points unmatched: 0.23-0.38 seen on PartNet renders).
+MAX_SCATTER_FRACTION = 0.4
+MIN_INLIER_FRACTION = 0.5
+MAX_AXIS_SIGMA_DEG = 5.0     # stated axis 1-sigma above this: "uncertainty large" (2 sigma = the 10 deg success bar)
+MAX_RELATIVE_SIGMA = 0.25    # stated angle / distance 1-sigma above this fraction of the estimate: "uncertainty large"
+COLLINEAR_RATIO = 1e-4       # second / first principal variance below this: a thin rod
+PLANAR_RATIO = 1e-4          # third / first principal variance below this: a flat part
+CONFIDENCE_RESIDUAL = 0.1    # confidence halves when the residual is this fraction of the part radius
+
+
+class WarningCode(Enum):
+    """What a fit warning says; ``lowers_confidence`` marks the ones that halve the confidence."""
+
+    CLEANED = "cleaned"                        # cleaning removed > 30 % of a state's points
+    FEW_POINTS = "few_points"                  # fewer than FitConfig.few_points points
+    COLLINEAR = "collinear"                    # thin rod: rotation about its own line unobservable
+    PLANAR = "planar"                          # flat part: axis relies on the in-plane shape
+    ILL_CONDITIONED = "ill_conditioned"
+    SMALL_ANGLE = "small_angle"                # rotation below FitConfig.small_angle_deg
+    FAR_PIVOT = "far_pivot"                    # revolute pivot far away: revolute vs prismatic ambiguous
+    AXIAL_SLIDE = "axial_slide"                # a revolute motion that also slides along its axis
+    TINY_SLIDE = "tiny_slide"                  # a slide comparable with the noise
+    OUTLIERS = "outliers"
+    TURN_AS_SLIDE = "turn_as_slide"            # a prismatic answer to a motion that turns
+    LARGE_UNCERTAINTY = "large_uncertainty"
+
+    @property
+    def lowers_confidence(self) -> bool:
+        return self in _LOWERS_CONFIDENCE
+
+
+_LOWERS_CONFIDENCE = {WarningCode.ILL_CONDITIONED, WarningCode.SMALL_ANGLE, WarningCode.FAR_PIVOT,
+                      WarningCode.TINY_SLIDE, WarningCode.OUTLIERS, WarningCode.TURN_AS_SLIDE,
+                      WarningCode.LARGE_UNCERTAINTY}
+
+
+@dataclass(frozen=True)
+class FitWarning:
+    code: WarningCode
+    message: str
+
+
+def shape_warnings(principal_variances: np.ndarray, condition: float) -> list[FitWarning]:
+    """A thin-rod or flat part (principal variances, descending) and an ill-conditioned Jacobian."""
+    found = []
+    first, second, third = principal_variances
+    if second < COLLINEAR_RATIO * first:
+        found.append(FitWarning(WarningCode.COLLINEAR, "part is nearly collinear (thin rod): rotation about its "
+                                                       "own line is unobservable"))
+    elif third < PLANAR_RATIO * first:
+        found.append(FitWarning(WarningCode.PLANAR, "part is nearly planar: axis estimate relies on the in-plane shape"))
+    if condition > ILL_CONDITIONED:
+        found.append(FitWarning(WarningCode.ILL_CONDITIONED, f"ill-conditioned fit (Jacobian condition number "
+                                                             f"{condition:.3g})"))
+    return found
+
+
+def revolute_warnings(angle: float, pivot_distance: float, part_radius: float, slide: float, slide_limit: float,
+                      unit_slide: float, small_angle_deg: float, far_pivot_factor: float) -> list[FitWarning]:
+    """angle (rad) below ``small_angle_deg``; pivot farther than ``far_pivot_factor`` part radii
+    (normalised units); |slide| along the axis above ``slide_limit`` (normalised; ``unit_slide``:
+    the same in input units, for the message)."""
+    found = []
+    if np.degrees(angle) < small_angle_deg:
+        found.append(FitWarning(WarningCode.SMALL_ANGLE, f"rotation of {np.degrees(angle):.3g} deg < "
+                                                         f"{small_angle_deg} deg: axis poorly defined"))
+    if pivot_distance > far_pivot_factor * part_radius:
+        found.append(FitWarning(WarningCode.FAR_PIVOT, f"pivot is {pivot_distance / part_radius:.3g} x the part "
+                                                       "radius away: revolute vs prismatic ambiguous"))
+    if abs(slide) > slide_limit:
+        found.append(FitWarning(WarningCode.AXIAL_SLIDE, f"motion slides {unit_slide:.3g} along the axis: "
+                                                         "not a pure rotation"))
+    return found
+
+
+def prismatic_warnings(distance: float, noise: float, unit_distance: float) -> list[FitWarning]:
+    """A slide shorter than 3 x its noise (both normalised)."""
+    if distance < 3.0 * noise:
+        return [FitWarning(WarningCode.TINY_SLIDE, f"slide of {unit_distance:.3g} is tiny compared with the noise: "
+                                                   "axis poorly defined")]
+    return []
+
+
+def reliability_warnings(kind: str, uncertainty: dict, angle: float | None, distance: float | None,
+                         scattered: float, inliers: float, turn_deg: float, pivot_factor: float,
+                         small_angle_deg: float, far_pivot_factor: float) -> list[FitWarning]:
+    """Outliers (many points scatter off any surface and few land on the other state), a
+    prismatic answer to a motion that turns by more than ``small_angle_deg`` about a far pivot
+    (small angle x large radius ~ translation), a stated uncertainty large against the estimate.
+    uncertainty: the stated sigma in input units; angle (rad) / distance (input units) or None."""
+    found = []
+    if scattered > MAX_SCATTER_FRACTION and inliers < MIN_INLIER_FRACTION:
+        found.append(FitWarning(WarningCode.OUTLIERS, f"many outliers: {100 * scattered:.0f} % of the points scatter "
+                                f"off any surface (> {100 * MAX_SCATTER_FRACTION:.0f} %) and only {100 * inliers:.0f} "
+                                f"% land on the other state under the fitted motion (< "
+                                f"{100 * MIN_INLIER_FRACTION:.0f} %); estimate unreliable"))
+    turn = abs(turn_deg)
+    if kind == "prismatic" and turn > small_angle_deg and pivot_factor > far_pivot_factor:
+        found.append(FitWarning(WarningCode.TURN_AS_SLIDE, f"the rigid motion turns by {turn:.3g} deg, which a "
+                                f"rotation about a pivot {pivot_factor:.3g} x the part radius away explains as well "
+                                "as a slide: revolute vs prismatic ambiguous"))
+    large = []
+    if uncertainty["axis_deg"] > MAX_AXIS_SIGMA_DEG:
+        large.append(f"axis +-{uncertainty['axis_deg']:.3g} deg > {MAX_AXIS_SIGMA_DEG:g} deg")
+    if angle is not None and uncertainty["angle"] > MAX_RELATIVE_SIGMA * abs(angle):
+        large.append(f"angle +-{np.degrees(uncertainty['angle']):.3g} deg of {np.degrees(angle):.3g} deg")
+    if distance is not None and uncertainty["distance"] > MAX_RELATIVE_SIGMA * abs(distance):
+        large.append(f"distance +-{uncertainty['distance']:.3g} of {abs(distance):.3g}")
+    if large:
+        found.append(FitWarning(WarningCode.LARGE_UNCERTAINTY,
+                                "uncertainty large relative to the estimate: " + ", ".join(large)))
+    return found
+
+
+def confidence(match_fraction: float, residual: float, part_radius: float, warnings: list[FitWarning]) -> float:
+    """In [0, 1]: the matched fraction, divided by 1 + (residual / (0.1 part radius))^2, halved
+    when any warning ``lowers_confidence``."""
+    relative = residual / max(part_radius, 1e-12)
+    value = float(np.clip(match_fraction, 0, 1) / (1.0 + (relative / CONFIDENCE_RESIDUAL) ** 2))
+    if any(w.code.lowers_confidence for w in warnings):
+        value *= 0.5
+    return float(np.clip(value, 0.0, 1.0))
+
+
+def inlier_fraction(start: np.ndarray, end: np.ndarray, rotation: np.ndarray, translation: np.ndarray,
+                    spacing_quantile: float = 0.1, tolerance: float = 4.0) -> float:
+    """Fraction of start points (n, 3) that land on the end cloud (m, 3) under the fitted motion.
+
+    "On" = an end point within ``tolerance`` x the surface spacing, the ``spacing_quantile``
+    quantile of the start cloud's nearest-neighbour distances (a low quantile: scattered outliers
+    are sparse and must not set the scale). Surface points seen in both states count, points of a
+    region seen in one state only and scattered outliers do not. O((n + m) log m).
+    """
+    if len(start) < 2 or len(end) < 1:
+        return 0.0
+    own = cKDTree(start).query(start, k=2)[0][:, 1]
+    radius = tolerance * max(float(np.quantile(own, spacing_quantile)), 1e-12)
+    distance = cKDTree(end).query(start @ rotation.T + translation)[0]
+    return float(np.mean(distance <= radius))
+
+
+def scatter_fraction(points: np.ndarray, rng: np.random.Generator, neighbours: int = 10,
+                     max_points: int = 4000, threshold: float = 0.1, tree: cKDTree | None = None) -> float:
+    """Fraction of points (n, 3) not lying on a surface or curve: the smallest eigenvalue of their
+    ``neighbours``-NN covariance exceeds ``threshold`` x the eigenvalue sum ("surface variation";
+    ~0 on a sampled surface or wire, ~0.2-0.3 for points scattered in a volume). Estimated on at
+    most ``max_points`` random points (neighbours from the whole cloud; ``tree``: its prebuilt
+    cKDTree). O(n log n)."""
+    if len(points) <= neighbours:
+        return 0.0
+    pick = rng.choice(len(points), min(max_points, len(points)), replace=False)
+    tree = tree if tree is not None else cKDTree(points)
+    _, index = tree.query(points[pick], k=neighbours + 1)
+    local = points[index] - points[index].mean(axis=1, keepdims=True)
+    eigen = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", local, local))
+    variation = eigen[:, 0] / np.maximum(eigen.sum(axis=1), 1e-300)
+    return float(np.mean(variation > threshold))
