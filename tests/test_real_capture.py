@@ -1,0 +1,51 @@
+"""The real robot capture (../shared/data/real/screwmimic_close_laptop_2) with the default options and
+no masks: a person closes a laptop lid on a table, hands on the lid in the end state.
+
+Ground truth: ``gt_estimate.json`` (RANSAC planes of the lid, trusted to a few degrees and ~1 cm).
+Its ``angle_deg_abs`` (83.9) is the angle BETWEEN the two lid planes, which is at most 90 deg; the
+lid's turn about the hinge is its supplement: measured from the hinge to the lid in each state it
+is 96.2 deg, and turning the start lid by 96.2 deg about the estimated hinge lands it on the end lid
+with a median gap of 1.8 mm (by 83.9 deg: 18.3 mm). So the turn is checked against 180 - 83.9.
+"""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from conftest import REPO_ROOT
+
+REAL = REPO_ROOT.parent / "shared" / "data" / "real" / "screwmimic_close_laptop_2"
+requires_real = pytest.mark.skipif(not (REAL / "gt_estimate.json").is_file(),
+                                   reason=f"real capture not found at {REAL} (see ../shared/README.md)")
+
+
+@pytest.fixture(scope="module")
+def laptop():
+    import sparseart
+
+    gt = json.loads((REAL / "gt_estimate.json").read_text())["joints"][0]
+    return sparseart.run(REAL), gt
+
+
+@requires_real
+@pytest.mark.xfail(reason="known open (issue 13): without masks the motion split calls points hidden in the "
+                          "other state (the base under the closed lid, table under the arm) 'moved', so the lid's "
+                          "part is polluted and the hinge lands ~2 cm off at a 173 deg turn; a visibility-aware "
+                          "split fixes it in a prototype (0.2 deg, 0.2 cm, 95.9 deg) but is not merged yet",
+                   raises=AssertionError, strict=True)
+def test_real_laptop_lid_hinge_and_turn(laptop) -> None:
+    from sparseart.bench.metrics import axis_angle_error_deg, point_to_line_distance
+
+    result, gt = laptop
+    revolute = [joint for _, joint in result.joints if joint.type == "revolute"]
+    assert revolute, f"no revolute joint found: {result.warnings}"
+    joint = max(revolute, key=lambda j: j.confidence)
+    assert axis_angle_error_deg(joint.axis, gt["axis"]) < 5.0
+    assert point_to_line_distance(gt["origin"], joint.axis, joint.origin) < 0.02   # metres
+    turn = abs(math.degrees(joint.angle))
+    turn = min(turn, 360.0 - turn)
+    assert abs(turn - (180.0 - gt["angle_deg_abs"])) < 10.0
+    assert np.isfinite(joint.uncertainty["axis_deg"]) and joint.confidence > 0.2
