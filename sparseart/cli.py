@@ -56,6 +56,8 @@ def _parser() -> argparse.ArgumentParser:
     vlm.add_argument("--vlm-pairs", type=int, default=3, help="image pairs to ask about (default 3)")
     run.add_argument("--json", action="store_true", help="print articulation.json instead of a summary")
     run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--budget", choices=["fast", "default", "best"], default="default",
+                     help="joint-fit budget: fast (~0.7x the fit time), default, best (~2x; dense real captures)")
     run.add_argument("--refine", action="store_true",
                      help="refine the joints with 3D Gaussians (SPLART; needs torch); writes PLY and renders")
     run.add_argument("--render-states", default="0,0.5,1",
@@ -182,6 +184,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     --out and move them in together at the end (:mod:`sparseart.io.outputs`)."""
     from sparseart.io.articulation import articulation_to_dict, summary_lines, write_articulation
     from sparseart.io.outputs import StagedOutputs, check_out_dir
+    from .joints.config import FitConfig
     from .pipeline import RunOptions, run
 
     check_out_dir(args.out, args.scene)
@@ -189,7 +192,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     options = RunOptions(joint_type=args.joint_type, use_masks=not args.no_masks, seed=args.seed,
                          refine=args.refine, refine_options=refine_options, segmenter=args.segmenter,
                          model=args.model, onnx_options=_onnx_settings(args), threads=_threads(args),
-                         matcher=args.matcher, matcher_min_score=_matcher_min_score(args))
+                         matcher=args.matcher, matcher_min_score=_matcher_min_score(args),
+                         fit=FitConfig.for_budget(args.budget))
     labeler = _labeler(args)
     with StagedOutputs(args.out, args.scene) as staged:
         result = run(args.scene, labeler=labeler, options=options)

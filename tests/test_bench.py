@@ -31,7 +31,8 @@ def test_grid_is_one_factor_at_a_time():
     assert default.name == "default" and default.views == 3 and default.posed and default.depth_noise == 0
     groups = {"views": {"views"}, "posed": {"posed"}, "depth": {"depth_noise", "flying_pixels"},
               "pose": {"pose_noise_deg", "pose_noise_m"}, "refine": {"refine"},
-              "masks": {"scramble_masks"}, "no_masks": {"use_masks"}, "segmenter": {"segmenter"}}
+              "masks": {"scramble_masks"}, "no_masks": {"use_masks"}, "segmenter": {"segmenter"},
+              "budget": {"budget"}}
     realistic = next(s for s in settings if s.name == "realistic")
     assert not realistic.posed and realistic.views == 3 and min(realistic.realism.levels().values()) == 1.0
     by_name = {s.name: s for s in settings}
@@ -55,7 +56,7 @@ def test_grid_is_one_factor_at_a_time():
         assert any(changed and changed <= group for group in groups.values()), (setting.name, changed)
     names = [s.name for s in settings]
     assert {"views1", "views2", "views4", "unposed", "depth1%+fly", "depth3%+fly", "pose0.5deg0.5cm",
-            "masks-scrambled", "no-masks", "builtin-segmenter"} <= set(names)
+            "masks-scrambled", "no-masks", "builtin-segmenter", "budget-fast", "budget-best"} <= set(names)
     assert ("refine" in names) != any(r.startswith("refine") for r in skipped)  # run or skipped with a reason
     assert ("realistic-xfeat" in names) != any(r.startswith("*-xfeat") for r in skipped)
     assert grid_settings(quick=True)[0] == [BenchSetting(name="default")]

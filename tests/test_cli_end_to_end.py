@@ -43,6 +43,20 @@ def test_run_writes_schema(cabinet_scene: Path, tmp_path: Path, capsys) -> None:
     assert [p.name for p in out.iterdir()] == ["articulation.json"]
 
 
+def test_budget_reaches_the_fit(cabinet_scene: Path, tmp_path: Path, monkeypatch) -> None:
+    """``--budget fast`` hands the fit FitConfig.for_budget("fast") and still finds both joints."""
+    import sparseart.pipeline as pipeline
+    from sparseart.joints.config import FitConfig
+
+    seen = []
+    fit_parts = pipeline.fit_parts
+    monkeypatch.setattr(pipeline, "fit_parts", lambda *a, config, **k: seen.append(config) or fit_parts(*a, config=config, **k))
+    assert main(["run", str(cabinet_scene), "--out", str(tmp_path / "out"), "--budget", "fast"]) == 0
+    assert seen == [FitConfig.for_budget("fast")]
+    doc = json.loads((tmp_path / "out" / "articulation.json").read_text())
+    assert sorted(j["type"] for j in doc["joints"]) == ["prismatic", "revolute"]
+
+
 def test_run_json_flag_prints_document(cabinet_scene: Path, tmp_path: Path, capsys) -> None:
     assert main(["run", str(cabinet_scene), "--out", str(tmp_path / "o"), "--json",
                  "--joint-type", "revolute"]) == 0

@@ -33,7 +33,7 @@ from sparseart.types import SceneError
 QUICK_OBJECTS = ("toaster_press_103486", "stapler_press_102990", "door_9168")
 FLYING_FRACTION = 0.5  # fraction of depth-edge pixels made flying in the noisy-depth settings
 CONFIG_FIELDS = ("views", "posed", "depth_noise", "flying_pixels", "pose_noise_deg", "pose_noise_m", "refine",
-                 "scramble_masks", "use_masks", "segmenter", "realism", "matcher")
+                 "scramble_masks", "use_masks", "segmenter", "realism", "matcher", "budget")
 STAGES = ("read", "segment", "lift", "align", "align.register_views", "align.align_states", "align.static", "label",
           "fit", "refine",
           "peer_segment", "peer_register")
@@ -58,7 +58,8 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
     Clean renders -- default: 3 views, posed, no depth noise, no pose noise, no refinement; then
     views 1 / 2 / 4, unposed, depth noise 1 % and 3 % (each with flying pixels on half the
     depth-edge pixels), pose noise 0.5 deg + 0.5 cm (object units), mask ids scrambled per image,
-    no masks (motion split), the built-in image segmenter instead of the masks, refinement.
+    no masks (motion split), the built-in image segmenter instead of the masks, the fit's ``fast`` and
+    ``best`` budgets (error against seconds per budget), refinement.
     Realistic renders (:mod:`sparseart.datasets.realism`, every knob at level 1, unposed) --
     ``realistic`` (3 views), ``realistic-1view``, ``realistic+refine``, and ``knob-NAME``: one knob
     alone at level 1 on the unposed 3-view default (posed for ``knob-pose_noise``, whose error
@@ -79,6 +80,7 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
                 replace(base, scramble_masks=True, name="masks-scrambled"),
                 replace(base, use_masks=False, name="no-masks"),
                 replace(base, segmenter="builtin", name="builtin-segmenter"),
+                replace(base, budget="fast", name="budget-fast"), replace(base, budget="best", name="budget-best"),
                 realistic, replace(realistic, views=1, name="realistic-1view"),
                 *(replace(base, posed=knob == "pose_noise", realism=Realism(**{knob: 1.0}), name=f"knob-{knob}")
                   for knob in KNOBS)]

@@ -30,7 +30,8 @@ class BenchSetting:
     pose_noise_deg / pose_noise_m: error of the written camera poses (degrees / object units,
     i.e. metres for metric objects). refine: ask the pipeline for refinement (needs
     ``RunOptions.refine``). segmenter: ``RunOptions.segmenter`` ("auto" = the rendered masks;
-    "builtin" ignores them and segments the images). name: label of the setting in tables and plots.
+    "builtin" ignores them and segments the images). matcher: ``RunOptions.matcher`` spec (None = SIFT).
+    budget: the joint fit's named budget (``FitConfig.for_budget``: fast | default | best). name: label of the setting in tables and plots.
     """
 
     views: int = 3
@@ -48,6 +49,7 @@ class BenchSetting:
     segmenter: str = "auto"
     realism: Realism = CLEAN
     matcher: str | None = None
+    budget: str = "default"
     name: str = "default"
 
     def render_key(self) -> str:
@@ -115,8 +117,10 @@ def evaluate_object(object_dir: str | Path, work_dir: str | Path, setting: Bench
     object_dir = Path(object_dir)
     scene_dir = Path(work_dir) / f"{object_dir.name}_{setting.render_key()}"
     gt, render_seconds = render_cached(object_dir, scene_dir, setting)
+    from sparseart.joints.config import FitConfig
+
     options = RunOptions(use_masks=setting.use_masks, seed=setting.seed, segmenter=setting.segmenter,
-                         matcher=setting.matcher)
+                         matcher=setting.matcher, fit=FitConfig.for_budget(setting.budget))
     if setting.refine:
         if not hasattr(options, "refine"):
             raise ValueError("bench: setting asks for refinement but RunOptions has no 'refine' option")
