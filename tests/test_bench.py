@@ -34,8 +34,14 @@ def test_grid_is_one_factor_at_a_time():
               "masks": {"scramble_masks"}, "no_masks": {"use_masks"}, "segmenter": {"segmenter"}}
     realistic = next(s for s in settings if s.name == "realistic")
     assert not realistic.posed and realistic.views == 3 and min(realistic.realism.levels().values()) == 1.0
+    by_name = {s.name: s for s in settings}
     for setting in settings[1:]:
         assert setting.seed == 3
+        if setting.name.endswith("-xfeat"):   # the same setting with the learned matcher instead of SIFT
+            base = by_name[setting.name[:-len("-xfeat")]]
+            assert setting.matcher and setting.matcher.startswith("xfeat:") and base.matcher is None
+            assert {k for k, v in vars(setting).items() if k != "name" and v != getattr(base, k)} == {"matcher"}
+            continue
         if not setting.realism.is_clean:   # realistic renders: compared with "realistic" / one knob alone
             if setting.name.startswith("knob-"):
                 knob = setting.name[len("knob-"):]
@@ -50,7 +56,8 @@ def test_grid_is_one_factor_at_a_time():
     names = [s.name for s in settings]
     assert {"views1", "views2", "views4", "unposed", "depth1%+fly", "depth3%+fly", "pose0.5deg0.5cm",
             "masks-scrambled", "no-masks", "builtin-segmenter"} <= set(names)
-    assert ("refine" in names) != bool(skipped)  # either run or skipped with a reason
+    assert ("refine" in names) != any(r.startswith("refine") for r in skipped)  # run or skipped with a reason
+    assert ("realistic-xfeat" in names) != any(r.startswith("*-xfeat") for r in skipped)
     assert grid_settings(quick=True)[0] == [BenchSetting(name="default")]
     assert {"realistic", "realistic-1view", "knob-jpeg", "knob-occluder"} <= set(names)
 

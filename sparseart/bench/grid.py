@@ -44,6 +44,14 @@ def default_partnet_dir() -> Path:
     return Path(__file__).resolve().parents[3] / "shared" / "data" / "partnet"
 
 
+def default_matcher_spec() -> str | None:
+    """The real XFeat + LighterGlue weights in ``../shared/models`` as a matcher spec, or None when
+    they are not there (the ``*-xfeat`` settings are then skipped with that reason)."""
+    models = Path(__file__).resolve().parents[3] / "shared" / "models"
+    detector, matcher = models / "xfeat.onnx", models / "lighterglue_L3.onnx"
+    return f"xfeat:{detector},{matcher}" if detector.is_file() and matcher.is_file() else None
+
+
 def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting], list[str]]:
     """The one-factor-at-a-time grid: (settings, skipped-setting reasons).
 
@@ -75,6 +83,13 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
                 *(replace(base, posed=knob == "pose_noise", realism=Realism(**{knob: 1.0}), name=f"knob-{knob}")
                   for knob in KNOBS)]
     skipped = []
+    xfeat = default_matcher_spec()
+    if xfeat:
+        # the same scenes registered by the learned matcher instead of SIFT (issue 14)
+        settings += [replace(s, matcher=xfeat, name=f"{s.name}-xfeat")
+                     for s in settings if s.name in ("unposed", "realistic", "realistic-1view")]
+    else:
+        skipped.append("*-xfeat: XFeat/LighterGlue weights not found in ../shared/models; settings skipped")
     if refine_available():
         settings += [replace(base, refine=True, name="refine"), replace(realistic, refine=True, name="realistic+refine")]
     else:
