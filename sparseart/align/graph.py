@@ -691,8 +691,8 @@ def register_scene(frames: dict[str, list[Frame]], pointmaps: dict[str, list[Poi
     reasons: dict[int, list[str]] = {v: [] for v in range(n)}
     for p in pairs:
         if len(p.points_a) < MIN_PAIR_MATCHES:
-            reasons[p.a].append(f"{len(p.points_a)} feature matches with {all_frames[p.b].rgb_path}")
-            reasons[p.b].append(f"{len(p.points_a)} feature matches with {all_frames[p.a].rgb_path}")
+            reasons[p.a].append(f"{len(p.points_a)} feature matches with {_image(all_frames[p.b])}")
+            reasons[p.b].append(f"{len(p.points_a)} feature matches with {_image(all_frames[p.a])}")
     began = time.perf_counter()
     roughness = [depth_roughness(p) for p in all_maps]
     roughness = float(np.nanmedian(roughness)) if np.isfinite(roughness).any() else float("nan")
@@ -767,9 +767,17 @@ def _finish(ctx: _Context, comps: _Components, reasons: dict[int, list[str]], se
         for _ in range(2):
             rho = _group_rho(ctx.pairs, views, poses, ctx.size)
             poses = _joint_solve(ctx.pairs, views, anchor, poses, size=ctx.size, rho=rho, scale_mode=scale_mode)
-        registered |= set(views)
-        for v in views:
-            info[v].how = "reference" if v == anchor else "features"
+        # States left apart: the end group may hold start views the reference group did not reach
+        # (merged across the states through the static part). Its frame is then that of its first
+        # END view, and its start views are not placed by it (their frame is not the start frame).
+        kept = views if c == reference else [v for v in views if v >= n_start]
+        if kept and kept[0] != anchor:
+            to_kept = np.linalg.inv(poses[kept[0]])
+            for v in views:
+                poses[v] = to_kept @ poses[v]
+        registered |= set(kept)
+        for v in kept:
+            info[v].how = "reference" if v == kept[0] else "features"
     lap("solve")
     if not ctx.relative and ctx.geometry_fallback and all(f.camera is not None for f in frames):
         _geometry(frames, ctx.maps, ctx.clouds, poses, registered, info, n_start, ctx.size, ctx.seed, reasons,
@@ -779,7 +787,7 @@ def _finish(ctx: _Context, comps: _Components, reasons: dict[int, list[str]], se
         if v not in registered:
             why = "; ".join(dict.fromkeys(reasons[v])) or "no matches"
             info[v].reason = why[:400]
-            warnings.append(f"{frames[v].rgb_path}: view could not be registered to the other views "
+            warnings.append(f"{_image(frames[v])}: view could not be registered to the other views "
                             f"({why[:400]}); it is left out")
     if ctx.polish and not ctx.relative and not ctx.roughness > POLISH_MAX_ROUGHNESS:
         _polish(frames, ctx.clouds, poses, registered, info, n_start, ctx.size, warnings)
@@ -803,6 +811,12 @@ def _finish(ctx: _Context, comps: _Components, reasons: dict[int, list[str]], se
     out_poses = {"start": [poses[g] if g in registered else None for g in range(n_start)],
                  "end": [poses[g] if g in registered else None for g in range(n_start, n)]}
     return SceneRegistration(out_poses, aligned, candidates, info, states, rho, warnings, seconds, ctx.roughness)
+
+
+def _image(frame: Frame) -> str:
+    """A frame's image as the scene folder names it: STATE/rgb/NAME."""
+    path = frame.rgb_path
+    return f"{path.parent.parent.name}/rgb/{path.name}"
 
 
 def _reason_text(reasons: dict[int, list[str]], views) -> str:
@@ -850,7 +864,7 @@ def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed
         poses[v] = poses[u] @ transform
         registered.add(v)
         info[v].how = "geometry"
-        warnings.append(f"{frames[v].rgb_path}: registered to {frames[u].rgb_path} by geometry only, "
+        warnings.append(f"{_image(frames[v])}: registered to {_image(frames[u])} by geometry only, "
                         f"{overlap:.0%} overlap")
 
 
@@ -865,7 +879,7 @@ def _polish(frames, clouds, poses, registered, info, n_start, size, warnings) ->
             target = np.concatenate(placed)
             scale = _matrix_scale(poses[v])
             if spread(target)[2] < PLANAR_FRACTION * size or spread(clouds[v])[2] < PLANAR_FRACTION * size:
-                warnings.append(f"{frames[v].rgb_path}: ICP polish on a planar cloud may slide along the plane")
+                warnings.append(f"{_image(frames[v])}: ICP polish on a planar cloud may slide along the plane")
             scaled = clouds[v] * scale
             init = poses[v].copy()
             init[:3, :3] /= scale
@@ -890,8 +904,8 @@ def _check_states(pairs, poses, registered, frames, surfaces, n_start, size, rho
         pb_all.append(_apply(poses[ve], end_side))
         limits.append(thresholds(p.distance * _matrix_scale(poses[vs]), size, rho))
         total += len(p.points_a)
-    names = f"{', '.join(str(frames[v].rgb_path) for v in range(n_start))} vs " \
-            f"{', '.join(str(frames[v].rgb_path) for v in range(n_start, len(frames)))}"
+    names = f"{', '.join(_image(frames[v]) for v in range(n_start))} vs " \
+            f"{', '.join(_image(frames[v]) for v in range(n_start, len(frames)))}"
     if not pa_all:
         return {"method": "none", "trusted": False, "reason": "no matches across the states"}, []
     points_a, points_b, limit = np.concatenate(pa_all), np.concatenate(pb_all), np.concatenate(limits)
