@@ -853,8 +853,11 @@ def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed
             continue
         same = [u for u in sorted(registered) if (u < n_start) == (v < n_start)]
         best = None
+        # the size of the view's own state (the other state's moved part would change it)
+        own = [clouds[u] for u in range(len(frames)) if (u < n_start) == (v < n_start) and len(clouds[u])]
+        state_size = scene_size(np.concatenate(own)) if own else size
         for u in same:
-            edge = geometry_edge(v, u, frames, maps, clouds, size, seed)
+            edge = geometry_edge(v, u, frames, maps, clouds, state_size, seed)
             if edge is not None and (best is None or edge[2] > best[1][2]):
                 best = (u, edge)
         if best is None:
