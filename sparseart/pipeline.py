@@ -125,7 +125,8 @@ def run(scene: Scene | str | Path, labeler: PartLabeler | None = None,
     segmenter = _segmenter_spec(scene, options)
     start, end = (_labelled_cloud(scene, state, aligned.pointmaps[state], segmenter) for state in ("start", "end"))
     return _label_and_fit(start, end, labeler, options, clock, warnings, scene=scene,
-                          alignment=aligned.alignment, frame=aligned.frame, motion_hints=aligned.motion_hints)
+                          alignment=aligned.alignment, frame=aligned.frame, motion_hints=aligned.motion_hints,
+                          registration=aligned.registration)
 
 
 def run_clouds(start: LabelledCloud, end: LabelledCloud, labeler: PartLabeler | None = None,
@@ -244,12 +245,13 @@ def _labelled_cloud(scene: Scene, state: str, pointmaps: list, segmenter: str) -
 def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabeler | None,
                    options: RunOptions, clock: StageClock, warnings: list[str], scene: Scene | None,
                    alignment: str, frame: tuple[str, str, str],
-                   motion_hints: list[np.ndarray] | None = None) -> Articulation:
+                   motion_hints: list[np.ndarray] | None = None, registration: dict | None = None) -> Articulation:
     """Label the parts, finish aligning the states on the static part, fit the joints, refine.
 
     alignment: "cameras" (already in one frame), "features" / "model" (roughly aligned: polished
     by ICP on the labelled static part), "none" (labelled unaligned first, then registered on the
     static part and labelled again).
+    registration: the alignment stage's report (:func:`sparseart.align.scene.registration_report`).
     """
     seed = options.seed
     labeler = labeler or RuleBasedLabeler(replace(options.labeler_config or RuleLabelerConfig(), seed=seed))
@@ -278,4 +280,4 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
         clock.skip("refine", "refinement not requested (--refine)")
     return Articulation(frame_kind=frame[0], frame_reference=frame[1], units=frame[2],
                         parts=parts, stages=clock.records, warnings=warnings,
-                        start_cloud=start, end_cloud=end, labels=labels)
+                        start_cloud=start, end_cloud=end, labels=labels, registration=registration or {})

@@ -310,3 +310,84 @@ def test_register_views_partnet_recovers_true_relative_poses(partnet_scene):
             true = np.linalg.inv(c2w[0]) @ c2w[i]
             assert angle_deg(transforms[i][:3, :3].T @ true[:3, :3]) < 1.0, (state, i)
             assert np.linalg.norm(transforms[i][:3, 3] - true[:3, 3]) < 0.01 * gt["scale"], (state, i)
+
+
+# ----------------------------------------------------------------------------- joint registration
+def _two_state_views(motion: np.ndarray, end_kind: str = "noise"):
+    """Two views per state of the room with a door; the end state's door moved by ``motion`` and
+    the end cameras elsewhere. Returns frames, pointmaps (own camera frames) and cameras per state."""
+    rects = room()
+    end_rects = [r.moved(motion) if r.moving else r for r in (rects if end_kind == "noise" else room(end_kind))]
+    eyes = {"start": ((-0.3, -0.4, 0.0), (0.1, -0.3, 0.1)), "end": ((0.4, -0.2, 0.2), (-0.1, -0.5, 0.0))}
+    frames, maps, cams = {}, {}, {}
+    for state, scene_rects in (("start", rects), ("end", end_rects)):
+        cams[state] = [look_at(e) for e in eyes[state]]
+        views = [frame_of(*render(scene_rects, c), state, i) for i, c in enumerate(cams[state])]
+        frames[state], maps[state] = [v[0] for v in views], [v[1] for v in views]
+    return frames, maps, cams
+
+
+def test_register_scene_places_every_view_and_finds_the_door():
+    from sparseart.align.graph import register_scene
+    from sparseart.align.scene import registration_report
+
+    frames, maps, cams = _two_state_views(DOOR_MOTION)
+    reg = register_scene(frames, maps, seed=0)
+    assert reg.aligned, reg.warnings
+    reference = cams["start"][0]
+    for state in ("start", "end"):
+        for pose, c2w in zip(reg.poses[state], cams[state]):
+            true = np.linalg.inv(reference) @ c2w
+            assert pose is not None
+            assert angle_deg(pose[:3, :3].T @ true[:3, :3]) < 0.5, (state, reg.warnings)
+            assert np.linalg.norm(pose[:3, 3] - true[:3, 3]) < 0.02
+    expected = np.linalg.inv(reference) @ DOOR_MOTION @ reference   # start -> end door motion, result frame
+    assert reg.candidates and angle_deg(reg.candidates[0].transform[:3, :3].T @ expected[:3, :3]) < 2.0
+    report = registration_report(reg)
+    assert [v["image"] for v in report["views"]] == ["start/rgb/000.png", "start/rgb/001.png",
+                                                    "end/rgb/000.png", "end/rgb/001.png"]
+    assert [v["how"] for v in report["views"]] == ["reference", "features", "features", "features"]
+    assert all(v["registered"] and v["inliers"] > 20 and v["residual"] < 0.02 for v in report["views"])
+    assert all(v["scale"] == 1.0 for v in report["views"])            # exact depth keeps its scale
+    states = report["states"]
+    assert states["method"] == "features" and states["trusted"] and states["inliers"] >= 15
+    assert states["rmse"] < 0.02 and states["inliers"] <= states["matches"]
+    json.dumps(report)                                                 # JSON-ready
+
+
+def test_register_scene_without_common_texture_leaves_the_states_apart_and_says_so():
+    from sparseart.align.graph import register_scene
+
+    frames, maps, cams = _two_state_views(DRAWER_MOTION, end_kind="flat")
+    reg = register_scene(frames, maps, seed=0, geometry_fallback=False)
+    assert not reg.aligned and reg.states["method"] == "none" and not reg.candidates
+    assert any("feature alignment of the states failed" in w for w in reg.warnings), reg.warnings
+    true = np.linalg.inv(cams["start"][0]) @ cams["start"][1]
+    assert angle_deg(reg.poses["start"][1][:3, :3].T @ true[:3, :3]) < 0.5
+    assert reg.poses["end"][1] is None          # the flat end views match nothing
+    assert any("end/rgb/001.png: view could not be registered" in w for w in reg.warnings)
+
+
+def test_ransac_per_match_thresholds():
+    rng = np.random.default_rng(3)
+    source = rng.uniform(-1, 1, (200, 3)) * [1, 1, 0.2] + [0, 0, 3]
+    R = rotation((0, 1, 0), 20.0)
+    target = source @ R.T + [0.1, 0.0, 0.2]
+    far = np.linalg.norm(target, axis=1)
+    noisy = target * (1 + 0.01 * rng.standard_normal((200, 1)))      # depth-proportional error
+    noisy[:60] = rng.uniform(-1, 1, (60, 3)) + [0, 0, 3]             # 30 % outliers
+    model, inliers = ransac_similarity(source, noisy, with_scale=False, threshold=0.04 * far, seed=0)
+    assert angle_deg(model.rotation.T @ R) < 1.0 and inliers[60:].mean() > 0.9 and inliers[:60].mean() < 0.2
+    with pytest.raises(ValueError, match="threshold"):
+        ransac_similarity(source, noisy, with_scale=False, threshold=np.ones(5))
+
+
+def test_depth_roughness_separates_exact_from_noisy_depth():
+    from sparseart.align.noise import depth_roughness
+
+    frame, pointmap = frame_of(*render(room(), look_at((0.0, -0.3, 0.0))), "start", 0)
+    assert depth_roughness(pointmap) < 1e-3
+    rng = np.random.default_rng(0)
+    noisy_depth = frame.depth * (1 + 0.005 * rng.standard_normal(frame.depth.shape))
+    _, noisy = frame_of(frame.rgb, noisy_depth, "start", 0)
+    assert 0.003 < depth_roughness(noisy) < 0.008

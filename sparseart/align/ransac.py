@@ -99,14 +99,15 @@ def _residuals(model: Similarity, source: np.ndarray, target: np.ndarray) -> np.
     return np.linalg.norm(model.apply(source) - target, axis=1)
 
 
-def ransac_similarity(source: np.ndarray, target: np.ndarray, *, with_scale: bool, threshold: float,
-                      iterations: int = 2000, seed: int = 0,
+def ransac_similarity(source: np.ndarray, target: np.ndarray, *, with_scale: bool,
+                      threshold: float | np.ndarray, iterations: int = 2000, seed: int = 0,
                       min_inliers: int = 6) -> tuple[Similarity, np.ndarray]:
     """Robust target ~ scale * R @ source + t from 3D matches (MSAC score, 3-point minimal sets).
 
     All minimal sets are drawn at once, solved by a batched SVD and scored with numpy in chunks:
     O(iterations * K) time, O(chunk * K) memory. The best model is refitted (Umeyama) on its
-    inliers until the inlier set is stable (at most 5 rounds). ``threshold`` is in target units.
+    inliers until the inlier set is stable (at most 5 rounds). ``threshold`` is in target units:
+    one number, or (K,) per match (e.g. growing with depth, :func:`sparseart.align.noise.thresholds`).
 
     Returns:
         (model, inlier mask (K,) bool).
@@ -119,6 +120,10 @@ def ransac_similarity(source: np.ndarray, target: np.ndarray, *, with_scale: boo
     k = source.shape[0]
     if k < max(3, min_inliers):
         raise AlignmentError(f"RANSAC needs at least {max(3, min_inliers)} matches, got {k}")
+    threshold = np.asarray(threshold, dtype=np.float64)
+    if threshold.ndim and threshold.shape != (k,):
+        raise ValueError(f"ransac_similarity: threshold must be a number or ({k},), got {threshold.shape}")
+    squared_threshold = threshold ** 2
     rng = np.random.default_rng(seed)
     samples = rng.integers(0, k, size=(iterations, 3))
     distinct = ((samples[:, 0] != samples[:, 1]) & (samples[:, 0] != samples[:, 2])
@@ -128,18 +133,25 @@ def ransac_similarity(source: np.ndarray, target: np.ndarray, *, with_scale: boo
         p = points[samples]
         return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
     target_area = area(target)
-    samples = samples[distinct & (target_area > threshold ** 2) & (area(source) > 0)]
+    smallest = squared_threshold[samples].min(axis=1) if threshold.ndim else squared_threshold
+    samples = samples[distinct & (target_area > smallest) & (area(source) > 0)]
     if samples.shape[0] == 0:
         raise AlignmentError(f"RANSAC found no non-degenerate 3-point sample among {k} matches")
     scale, rotation, translation = _batched_umeyama(source[samples], target[samples], with_scale)
     best_cost, best = np.inf, 0
-    chunk = max(1, 2_000_000 // max(k, 1))
+    chunk = max(1, 250_000 // max(k, 1))
+    source_t, target_t = np.ascontiguousarray(source.T), np.ascontiguousarray(target.T)
     for lo in range(0, samples.shape[0], chunk):
         hi = lo + chunk
-        moved = scale[lo:hi, None, None] * np.einsum("ijk,nk->inj", rotation[lo:hi], source)
-        moved += translation[lo:hi, None, :]
-        squared = np.sum((moved - target[None]) ** 2, axis=2)
-        cost = np.minimum(squared, threshold ** 2).sum(axis=1)
+        # one coordinate at a time: (chunk, 3) @ (3, K) BLAS products into small (chunk, K) arrays
+        block = scale[lo:hi, None, None] * rotation[lo:hi]
+        squared = np.zeros((block.shape[0], k))
+        for c in range(3):
+            difference = block[:, c, :] @ source_t
+            difference += translation[lo:hi, c, None]
+            difference -= target_t[c][None]
+            squared += difference * difference
+        cost = np.minimum(squared, squared_threshold).sum(axis=1)
         i = int(np.argmin(cost))
         if cost[i] < best_cost:
             best_cost, best = float(cost[i]), lo + i

@@ -4,25 +4,29 @@
 
 * frame "world" (posed) or "model" (a reconstructor's joint frame): nothing to register
   (alignment "cameras" / "model"; a "model" alignment is polished on the static part later);
-* frame "views" (unposed RGB-D): each state's views registered to its first view
-  (:func:`~sparseart.align.views.register_views`, rigid, metric depth), then the end state to the
-  start state (:func:`~sparseart.align.states.align_states`);
-* frame "states" (per-state reconstructions): only the states are aligned, by a similarity.
+* frame "views" (unposed RGB-D): every view of both states registered at once
+  (:func:`~sparseart.align.graph.register_scene`: all pairs matched, components of views merged by
+  pooled robust fits, poses solved jointly, per-view depth scale, checked state alignment);
+* frame "states" (per-state reconstructions): only the states are aligned, by a similarity
+  (:func:`~sparseart.align.states.align_states`).
 
 A state alignment by features is polished on the labelled static part after labelling
-(:mod:`sparseart.align.static`, alignment "features"); when it fails the states stay apart
-(alignment "none") and the pipeline registers them through the labeler's static part.
+(:mod:`sparseart.align.static`, alignment "features"); when it fails or is not trusted the states
+stay apart (alignment "none") and the pipeline registers them through the labeler's static part.
+
+``AlignedScene.registration`` reports how each view and the states were registered (see
+:func:`registration_report`); the pipeline copies it into ``Articulation.registration``.
 """
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from sparseart.align.graph import SceneRegistration, register_scene
 from sparseart.align.ransac import AlignmentError
 from sparseart.align.states import align_states
-from sparseart.align.views import register_views
 from sparseart.geometry.clouds import transform_pointmap
 from sparseart.lift.scene_lift import LiftedScene
 from sparseart.types import Pointmap, Scene
@@ -32,15 +36,19 @@ STATES = ("start", "end")
 
 @dataclass
 class AlignedScene:
-    """Every kept view's pointmap in the result frame.
+    """Every view's pointmap in the result frame.
 
-    pointmaps: {"start": [...], "end": [...]}; a view that could not be registered is dropped (the
-        lists are then shorter than the scene's frames: the first len(...) frames are kept).
+    pointmaps: {"start": [...], "end": [...]}, one per frame of the scene; a view that could not be
+        registered keeps its place with no valid point (so it adds nothing to the clouds).
     alignment: "cameras" | "model" | "features" | "none" (module docstring).
     frame: (kind "world" | "camera", what defines it, units "metres" | "relative").
     motion_hints: (4, 4) start->end rigid motions in the result frame that state alignment found
         among the matches the static transform did not explain (candidate moving parts).
-    seconds: wall seconds of "register_views" and "align_states" when they ran.
+    seconds: wall seconds of "register_views" (matching, merging, joint solve, polish) and
+        "align_states" (state checks, motion candidates) when they ran.
+    registration: the report of :func:`registration_report` (per view and for the states).
+    poses: {"start": [...], "end": [...]} (4, 4) camera -> result frame per view (None: not
+        registered) for unposed scenes; empty otherwise.
     """
 
     pointmaps: dict[str, list[Pointmap]]
@@ -50,6 +58,8 @@ class AlignedScene:
     seconds: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     diagnostics: dict = field(default_factory=dict)
+    registration: dict = field(default_factory=dict)
+    poses: dict[str, list[np.ndarray | None]] = field(default_factory=dict)
 
 
 def align_scene(scene: Scene, lifted: LiftedScene, *, seed: int = 0, matcher=None) -> AlignedScene:
@@ -67,56 +77,102 @@ def align_scene(scene: Scene, lifted: LiftedScene, *, seed: int = 0, matcher=Non
             exists for relative scale).
     """
     reference = "OpenCV frame of start/rgb/" + scene.start[0].rgb_path.name
-    if lifted.frame == "world":
-        return AlignedScene(lifted.pointmaps, "cameras", ("world", "cameras.json world frame", "metres"),
-                            warnings=list(lifted.warnings))
+    if lifted.frame in ("world", "model"):
+        how = "cameras" if lifted.frame == "world" else "model"
+        frame = (("world", "cameras.json world frame", "metres") if lifted.frame == "world"
+                 else ("camera", reference, lifted.units))
+        return AlignedScene(lifted.pointmaps, how, frame, warnings=list(lifted.warnings),
+                            registration=_given_report(scene, how))
     frame = ("camera", reference, lifted.units)
-    if lifted.frame == "model":
-        return AlignedScene(lifted.pointmaps, "model", frame, warnings=list(lifted.warnings))
     warnings = list(lifted.warnings)
-    seconds: dict[str, float] = {}
-    pointmaps = dict(lifted.pointmaps)
     if lifted.frame == "views":
         began = time.perf_counter()
-        pointmaps = {state: _register_state(scene, state, pointmaps[state], seed, matcher, warnings)
+        registration = register_scene({s: scene.frames(s) for s in STATES}, lifted.pointmaps,
+                                      relative=lifted.units != "metres", seed=seed, matcher=matcher)
+        total = time.perf_counter() - began
+        checks = registration.seconds.get("check", 0.0)
+        seconds = {"register_views": total - checks, "align_states": checks}
+        warnings.extend(registration.warnings)
+        pointmaps = {state: [transform_pointmap(p, pose) if pose is not None else _emptied(p)
+                             for p, pose in zip(lifted.pointmaps[state], registration.poses[state])]
                      for state in STATES}
-        seconds["register_views"] = time.perf_counter() - began
+        report = registration_report(registration)
+        diagnostics = {k: report["states"].get(k) for k in ("matches", "inliers", "rmse")}
+        diagnostics["candidates"] = [int(c.support) for c in registration.candidates]
+        alignment = "features" if registration.aligned else "none"
+        return AlignedScene(pointmaps, alignment, frame, [c.transform for c in registration.candidates], seconds,
+                            warnings, diagnostics, report, registration.poses)
+    # "states": per-state reconstructions, each already in one frame; only the states are aligned.
+    pointmaps = dict(lifted.pointmaps)
     began = time.perf_counter()
     with_scale = lifted.units != "metres"
     try:
-        alignment = align_states(scene.start[:len(pointmaps["start"])], pointmaps["start"],
-                                 scene.end[:len(pointmaps["end"])], pointmaps["end"],
+        alignment = align_states(scene.start, pointmaps["start"], scene.end, pointmaps["end"],
                                  with_scale=with_scale, seed=seed, matcher=matcher)
     except AlignmentError as error:
-        seconds["align_states"] = time.perf_counter() - began
+        seconds = {"align_states": time.perf_counter() - began}
         if with_scale:
             raise
         warnings.append(f"feature alignment of the states failed ({error}); registering them through "
                         f"the static part instead")
-        return AlignedScene(pointmaps, "none", frame, seconds=seconds, warnings=warnings)
-    seconds["align_states"] = time.perf_counter() - began
+        report = _given_report(scene, "model")
+        report["states"] = {"method": "none", "trusted": False, "reason": str(error)}
+        return AlignedScene(pointmaps, "none", frame, seconds=seconds, warnings=warnings, registration=report)
+    seconds = {"align_states": time.perf_counter() - began}
     warnings.extend(alignment.warnings)
     to_start = alignment.transform.matrix()
     pointmaps["end"] = [transform_pointmap(p, to_start) for p in pointmaps["end"]]
     diagnostics = {"matches": int(len(alignment.inliers)), "static_inliers": int(alignment.inliers.sum()),
                    "scale": float(alignment.transform.scale), "rmse": float(alignment.rmse),
                    "candidates": [int(c.support) for c in alignment.candidates]}
+    report = _given_report(scene, "model")
+    report["states"] = {"method": "features", "trusted": True, "matches": int(len(alignment.inliers)),
+                        "inliers": int(alignment.inliers.sum()), "rmse": float(alignment.rmse),
+                        "scale": float(alignment.transform.scale)}
     return AlignedScene(pointmaps, "features", frame, [c.transform for c in alignment.candidates],
-                        seconds, warnings, diagnostics)
+                        seconds, warnings, diagnostics, report)
 
 
-def _register_state(scene: Scene, state: str, own: list[Pointmap], seed: int, matcher,
-                    warnings: list[str]) -> list[Pointmap]:
-    """One state's views (each in its own camera frame) -> the frame of its first view; a state
-    whose views cannot be registered keeps its first view only, with a warning."""
-    frames = scene.frames(state)
-    if len(frames) < 2:
-        return own
-    try:
-        transforms, view_warnings = register_views(frames, own, with_scale=False, seed=seed, matcher=matcher)
-    except AlignmentError as error:
-        warnings.append(f"{state}: views could not be registered ({error}); only "
-                        f"{state}/rgb/{frames[0].rgb_path.name} is used")
-        return own[:1]
-    warnings.extend(view_warnings)
-    return [transform_pointmap(p, t) for p, t in zip(own, transforms)]
+def _emptied(pointmap: Pointmap) -> Pointmap:
+    """The pointmap of a view that could not be registered: same grid, no valid point."""
+    return replace(pointmap, points=np.full_like(pointmap.points, np.nan), valid=np.zeros_like(pointmap.valid),
+                   confidence=np.zeros_like(pointmap.confidence),
+                   depth=None if pointmap.depth is None else np.zeros_like(pointmap.depth))
+
+
+def _given_report(scene: Scene, how: str) -> dict:
+    """Registration report of views placed by their cameras ("cameras") or a reconstructor ("model")."""
+    views = [{"image": f"{f.state}/rgb/{f.rgb_path.name}", "registered": True, "how": how,
+              "inliers": None, "residual": None, "scale": 1.0} for f in scene.all_frames]
+    return {"views": views, "states": {"method": how, "trusted": True}}
+
+
+def registration_report(registration: SceneRegistration) -> dict:
+    """The JSON-ready registration report of an unposed scene.
+
+    views: one entry per image: "image" (state/rgb/NAME), "registered", "how" ("reference" = the
+        frame's own camera, "features", "geometry", "unregistered"), "inliers" (matches to the other
+        registered views that agree with the poses), "residual" (their RMS distance, scene units),
+        "scale" (estimated depth scale of the view, 1 = as given), "reason" (why a view was left out).
+    states: "method" ("features", or "none" when the states were left apart: failed or not
+        trusted), "trusted", "matches" / "inliers" (cross-state matches / those on the static part),
+        "rmse" (of the inliers), "second_motion" (support of the strongest moving part),
+        "seen_through" (share of end points where the start cameras see empty space), "reason".
+    noise: the depth-relative inlier threshold used (fraction of the distance from the camera);
+    depth_noise: the per-pixel depth noise relative to distance (median view; ICP polish only below 0.2 %);
+    seconds: wall seconds per step (match, merge, solve, geometry, polish, check).
+    """
+    views = []
+    for view in registration.views:
+        name = view.name.replace("\\", "/").split("/")
+        image = "/".join(name[-3:]) if len(name) >= 3 else view.name
+        entry = {"image": image, "registered": view.how != "unregistered", "how": view.how,
+                 "inliers": int(view.inliers), "residual": view.residual, "scale": round(float(view.scale), 5)}
+        if view.reason:
+            entry["reason"] = view.reason
+        views.append(entry)
+    states = {k: v for k, v in registration.states.items() if k not in ("untrusted",)}
+    noise = registration.depth_noise
+    return {"views": views, "states": states, "noise": round(float(registration.rho), 5),
+            "depth_noise": round(float(noise), 6) if np.isfinite(noise) else None,
+            "seconds": {k: round(v, 3) for k, v in registration.seconds.items()}}
