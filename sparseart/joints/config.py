@@ -55,6 +55,10 @@ class FitConfig:
         warm-started at the optimum, one step each (< 2: off); ~5 ms each.
     uncertainty_floor: add the calibrated systematic floor (``UNCERTAINTY_FLOOR``) to the stated sigma.
     clean: outlier / fragment removal (``clean.clean_part_points``) before fitting.
+    confidence_weights: when the points come with a confidence (``fit_joint(start_confidence=,
+        end_confidence=)``, from a scene's ``conf/`` maps), weight each matched pair's residual by
+        sqrt(c_start c_end) on top of the distance-proportional weights (``optimise.pair_weights``);
+        False, or no / all-one confidences, fits exactly as without them.
     seed: every random choice of the fit.
     """
 
@@ -83,6 +87,7 @@ class FitConfig:
     pair_tau_factor: float = 3.0
     normal_gate_deg: float = 45.0
     clean: bool = True
+    confidence_weights: bool = True
     seed: int = 0
 
     @classmethod

@@ -99,6 +99,21 @@ def pair_weights(kind: str, start: np.ndarray, end: np.ndarray, beta: float) -> 
     return count * (normalised + beta) / np.sum(normalised + beta)
 
 
+def confidence_pair_weights(weights: np.ndarray, sample: Sample, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``weights`` (K,) of the pairs (rows into ``sample.start``, cols into ``sample.end``) times
+    sqrt(c_start c_end), the geometric mean of the two points' depth confidences, rescaled to the
+    mean of ``weights`` (so the balance with the Chamfer term is kept): a pair with a smeared or
+    warped point counts less. ``weights`` itself (the same array) when the sample carries no
+    confidences, so a fit without them is unchanged to the bit. O(K)."""
+    if sample.start_confidence is None or sample.end_confidence is None or len(rows) == 0:
+        return weights
+    scaled = weights * np.sqrt(sample.start_confidence[rows] * sample.end_confidence[cols])
+    total = float(np.sum(scaled))
+    if not total > 1e-12 * max(float(np.sum(weights)), 1e-300):
+        return weights   # every pair has confidence 0: nothing to prefer
+    return scaled * (float(np.sum(weights)) / total)
+
+
 class Problem:
     """Residual vector of ``L_align + alpha L_CD`` for one model: weighted pair residuals and the
     symmetric Chamfer residuals of a fixed Chamfer sample, whose nearest neighbours are frozen
@@ -342,8 +357,8 @@ def alternate(model: Model, sample: Sample, config: FitConfig) -> Alternation:
         x = model.x0
         _, rows, cols, tau = _pairs(model, x, sample, config, normal_cos)
         pair_start, pair_end = sample.start[rows], sample.end[cols]
-        problem = Problem(model, pair_start, pair_end, pair_weights(model.kind, pair_start, pair_end, config.beta),
-                          loss=config.robust_loss)
+        weights = confidence_pair_weights(pair_weights(model.kind, pair_start, pair_end, config.beta), sample, rows, cols)
+        problem = Problem(model, pair_start, pair_end, weights, loss=config.robust_loss)
         result = problem.solve(x, f_scale=max(tau / 3.0, 1e-9), max_nfev=30)
         change = motion_change(model, x, result.x, sample.start)
         rotation, translation = model.motion(result.x)
@@ -420,7 +435,8 @@ def fit_model(model: Model, part: PartData, config: FitConfig) -> ModelFit:
     else:
         moved, rows, cols, tau = _pairs(model, x, sample, config, normal_cos)
     pair_start, pair_end = sample.start[rows], sample.end[cols]
-    problem = Problem(model, pair_start, pair_end, pair_weights(model.kind, pair_start, pair_end, config.beta),
+    weights = confidence_pair_weights(pair_weights(model.kind, pair_start, pair_end, config.beta), sample, rows, cols)
+    problem = Problem(model, pair_start, pair_end, weights,
                       chamfer, config.chamfer_weight, config.robust_loss, config.normal_gate_deg < 90, normal_cos)
     pair_distance = np.linalg.norm(moved[rows] - pair_end, axis=1)
     f_scale = max(1.4826 * float(np.median(pair_distance)) / np.sqrt(3.0), tau / 6.0, 1e-9)
