@@ -38,7 +38,8 @@ from sparseart.joints.config import UNCERTAINTY_FLOOR, FitConfig
 from sparseart.joints.models import Model
 from sparseart.joints.part import MIN_POINTS, PartData, Sample
 
-QUANTUM_BITS = 20  # matching costs are integers in units of tau^2 / 2^QUANTUM_BITS
+QUANTUM_BITS = 20
+CHAMFER_CONFIDENCE = False  # matching costs are integers in units of tau^2 / 2^QUANTUM_BITS
 
 
 def one_to_one_pairs(moved: np.ndarray, sample: Sample, tau_factor: float = 3.0,
@@ -167,7 +168,14 @@ class Problem:
             turned = chamfer.start_normals @ rotation.T
             forward_ok = np.abs(np.einsum("ij,ij->i", turned, chamfer.end_normals[forward])) >= self.normal_cos
             backward_ok = np.abs(np.einsum("ij,ij->i", turned[backward], chamfer.end_normals)) >= self.normal_cos
-        return forward, backward, forward_ok.astype(float), backward_ok.astype(float)
+        forward_ok, backward_ok = forward_ok.astype(float), backward_ok.astype(float)
+        if CHAMFER_CONFIDENCE and chamfer.start_confidence is not None and chamfer.end_confidence is not None:
+            # residual factor sqrt(w), w = sqrt(c_a c_b) / mean: the pair weights' rule for nearest neighbours
+            forward_w = np.sqrt(chamfer.start_confidence * chamfer.end_confidence[forward])
+            backward_w = np.sqrt(chamfer.end_confidence * chamfer.start_confidence[backward])
+            forward_ok *= np.sqrt(forward_w / max(float(forward_w.mean()), 1e-12))
+            backward_ok *= np.sqrt(backward_w / max(float(backward_w.mean()), 1e-12))
+        return forward, backward, forward_ok, backward_ok
 
     def solve(self, x0: np.ndarray, f_scale: float, max_nfev: int, frozen: tuple | None = None) -> Solution:
         """Robust (``loss``) least squares from ``x0`` with the Chamfer neighbours ``frozen``
