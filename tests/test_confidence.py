@@ -157,16 +157,26 @@ def test_conf_reaches_pointmap_and_labelled_cloud(tmp_path: Path) -> None:
     assert cloud.confidence.min() == pytest.approx(0.05)
 
 
-def test_low_confidence_points_are_dropped(tmp_path: Path) -> None:
+@pytest.mark.parametrize("threshold", [0.15, 0.3])
+def test_low_confidence_points_are_dropped(tmp_path: Path, threshold: float) -> None:
     root = _scene_with_conf(tmp_path / "scene")
     _, pointmaps, everything = _state_cloud(root, min_confidence=0.0)
-    _, _, kept = _state_cloud(root)                       # the default threshold
-    assert 0.05 < lift_labels.DEPTH_CONFIDENCE_MIN <= 0.5
-    assert kept.confidence.min() >= lift_labels.DEPTH_CONFIDENCE_MIN
-    low = everything.confidence < lift_labels.DEPTH_CONFIDENCE_MIN
-    assert low.sum() == 2 * H * 5                          # the 5 low columns of both views
+    _, _, kept = _state_cloud(root, min_confidence=threshold)
+    assert kept.confidence.min() >= threshold
+    low = everything.confidence < threshold
+    assert low.sum() >= 2 * H * 5                          # at least the 5 low columns of both views
     assert len(kept) == len(everything) - low.sum()
     assert not np.isin(kept.pixel_index % W, np.arange(5)).any()
+    np.testing.assert_array_equal(kept.points, everything.points[~low])
+
+
+def test_default_threshold_keeps_every_point(tmp_path: Path) -> None:
+    """Dropping is off by default (``DEPTH_CONFIDENCE_MIN`` = 0: it hurt on the rendered scenes)."""
+    root = _scene_with_conf(tmp_path / "scene")
+    _, pointmaps, default = _state_cloud(root)
+    assert lift_labels.DEPTH_CONFIDENCE_MIN == 0.0
+    assert len(default) == sum(int(p.valid.sum()) for p in pointmaps)
+    assert FitConfig().confidence_weights is False
 
 
 def test_absent_conf_changes_nothing(tmp_path: Path) -> None:
