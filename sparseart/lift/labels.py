@@ -15,10 +15,11 @@ SEGMENT_STRIDE = 1 << 16  # segment id = frame_index * SEGMENT_STRIDE + mask id 
 # are left out of the labelled clouds (smeared depth edges, hole rims, strongly warped regions);
 # frames without a map lose nothing. 0 = off, the default, because dropping hurt on average
 # (benchmarks/results/confidence_realistic.txt: 7 rendered realistic objects, posed and unposed):
-# at 0.15 three of five prismatic joints of the posed scenes turned revolute (~85 deg) -- the
-# dropped points are the edges and grazing side walls, unevenly between the states, and those
-# carry the slide direction -- though unposed registrations improved (median axis 3.1 -> 2.3 deg);
-# at 0.05 a posed door and an unposed drawer failed instead. Pass ``min_confidence`` to use it.
+# at 0.15 all three prismatic joints of the posed scenes (and the unposed dishwasher) turned
+# revolute (~85-90 deg off): the dropped points are edges and grazing side walls, unevenly in the
+# two states, and they carry the slide direction; unposed registrations did improve (median axis
+# 3.1 -> 2.3 deg). At 0.05 a posed door, the unposed dishwasher and an unposed storage drawer
+# failed instead. Pass ``min_confidence`` to use it.
 DEPTH_CONFIDENCE_MIN = 0.0
 
 
