@@ -21,18 +21,19 @@ import time
 
 import sparseart
 import sparseart.io.scene as scene_io
-import sparseart.lift.labels as labels
-import sparseart.pipeline as pipeline
+from sparseart import pipeline
 from sparseart.bench.evaluate import evaluate
 from sparseart.io.scene import load_scene
 from sparseart.joints.config import FitConfig
+from sparseart.lift import labels
 
 
 def main(argv: list[str]) -> None:
     root, mode, obj, variant = argv[:4]
     threshold = float(argv[4]) if len(argv) > 4 else 0.15
     scene_dir = f"{root}/{mode}/{obj}"
-    gt = json.load(open(f"{scene_dir}/gt.json"))
+    with open(f"{scene_dir}/gt.json") as stream:
+        gt = json.load(stream)
     if variant == "none":
         read_state = scene_io._read_state
 

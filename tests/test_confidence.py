@@ -8,10 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
 from conftest import write_tiny_scene
+from scipy.spatial.transform import Rotation
 from synthetic import box_surface
+
 from sparseart.cli import main
 from sparseart.io.scene import load_scene
 from sparseart.joints.config import FitConfig
@@ -160,7 +160,7 @@ def test_conf_reaches_pointmap_and_labelled_cloud(tmp_path: Path) -> None:
 @pytest.mark.parametrize("threshold", [0.15, 0.3])
 def test_low_confidence_points_are_dropped(tmp_path: Path, threshold: float) -> None:
     root = _scene_with_conf(tmp_path / "scene")
-    _, pointmaps, everything = _state_cloud(root, min_confidence=0.0)
+    _, _pointmaps, everything = _state_cloud(root, min_confidence=0.0)
     _, _, kept = _state_cloud(root, min_confidence=threshold)
     assert kept.confidence.min() >= threshold
     low = everything.confidence < threshold
@@ -181,7 +181,7 @@ def test_default_threshold_keeps_every_point(tmp_path: Path) -> None:
 
 def test_absent_conf_changes_nothing(tmp_path: Path) -> None:
     root = write_tiny_scene(tmp_path / "scene", views=2)
-    frames, pointmaps, cloud = _state_cloud(root)
+    _frames, pointmaps, cloud = _state_cloud(root)
     assert len(cloud) == sum(int(p.valid.sum()) for p in pointmaps) == 2 * H * W
     np.testing.assert_array_equal(cloud.confidence, np.ones(len(cloud)))
     # a threshold of 1 cannot drop anything either: only frames WITH a map are thresholded
@@ -207,7 +207,7 @@ def _door(seed: int = 0, n: int = 3000, low: float = 0.01):
     return start, end, np.ones(len(start)), end_conf
 
 
-WEIGHTED = dict(uncertainty_resamples=0, half_samples=0, confidence_weights=True)
+WEIGHTED = {"uncertainty_resamples": 0, "half_samples": 0, "confidence_weights": True}
 
 
 def test_pair_weights_follow_confidence() -> None:
@@ -237,7 +237,7 @@ def test_pair_weights_follow_confidence() -> None:
 def test_all_one_confidence_fits_identically() -> None:
     start, end, _, _ = _door(seed=1)
     config = FitConfig.for_budget("fast", **WEIGHTED)
-    ones = dict(start_confidence=np.ones(len(start)), end_confidence=np.ones(len(end)))
+    ones = {"start_confidence": np.ones(len(start)), "end_confidence": np.ones(len(end))}
     plain_part = prepare_part(start, end, config, cache=False)
     ones_part = prepare_part(start, end, config, cache=False, **ones)
     for name in ("match", "chamfer", "screen"):
