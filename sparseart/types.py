@@ -50,6 +50,9 @@ class Frame:
     rgb: (H, W, 3) uint8.
     depth: (H, W) float64 metres (0 = invalid) or None.
     mask: (H, W) int64 label image (0 = background) or None. Ids are local to this image.
+    depth_confidence: (H, W) float64 in [0, 1], the per-pixel confidence of the depth
+        (``conf/NNN.npy``: a reconstructor's depth_conf or a sensor's quality map), or None
+        (unknown: every valid depth pixel counts fully).
     """
 
     state: str
@@ -61,6 +64,8 @@ class Frame:
     camera: Camera | None = None
     depth_path: Path | None = None
     mask_path: Path | None = None
+    depth_confidence: np.ndarray | None = None
+    confidence_path: Path | None = None
 
     @property
     def shape(self) -> tuple[int, int]:

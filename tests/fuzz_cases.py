@@ -235,6 +235,29 @@ def _masks(make: Callable[[tuple[int, int]], np.ndarray], state: str = "start") 
     return mutate
 
 
+def _conf(bad: Callable[[tuple[int, int]], Any] | None, skip: str | None = None) -> Callable[[Path], str]:
+    """Give every image a valid ``conf/NNN.npy`` (0.9), then replace ``start/conf/000.npy`` by
+    ``bad((H, W))`` (an array, saved) or, with ``skip``, leave out "end/conf/000.npy" or the whole
+    "end/conf" folder."""
+    def mutate(scene: Path) -> str:
+        for rgb in sorted(scene.glob("*/rgb/*.png")):
+            folder = rgb.parent.parent / "conf"
+            folder.mkdir(exist_ok=True)
+            height, width = cv2.imread(str(rgb), cv2.IMREAD_UNCHANGED).shape[:2]
+            target = folder / f"{rgb.stem}.npy"
+            rel = target.relative_to(scene).as_posix()
+            if rel == skip:
+                continue
+            value = bad((height, width)) if bad is not None and rel == "start/conf/000.npy" \
+                else np.full((height, width), 0.9, np.float32)
+            np.save(target, value)
+        if skip == "end/conf":            # a whole state without confidence: named by its first image
+            shutil.rmtree(scene / "end" / "conf")
+            return "end/rgb/000.png"
+        return "end/conf" if skip else "start/conf/000.npy"
+    return mutate
+
+
 def _speckle_ids(shape: tuple[int, int]) -> np.ndarray:
     """Every pixel its own id (thousands of ids)."""
     return (np.arange(shape[0] * shape[1]).reshape(shape) % 65535 + 1).astype(np.uint16)
@@ -512,6 +535,14 @@ def scene_cases() -> list[Case]:
     add(Case("mask_all_background", "tiny-id masks", _masks(lambda s: np.zeros(s, np.uint8))))
     add(Case("mask_rgb", "wrong types", _masks(lambda s: np.ones((*s, 3), np.uint8))))
     add(Case("mask_size_mismatch", "wrong types", _masks(lambda s: np.ones((s[0] // 2, s[1]), np.uint8))))
+    # ---- depth confidence (conf/NNN.npy)
+    add(Case("conf_nan", "NaN/inf", _conf(lambda s: np.full(s, np.nan, np.float32))))
+    add(Case("conf_above_one", "implausible numbers", _conf(lambda s: np.full(s, 1.5, np.float32))))
+    add(Case("conf_negative", "implausible numbers", _conf(lambda s: np.full(s, -0.1, np.float32))))
+    add(Case("conf_wrong_size", "wrong types", _conf(lambda s: np.ones((s[0], s[1] + 3), np.float32))))
+    add(Case("conf_int", "wrong types", _conf(lambda s: np.ones(s, np.int32))))
+    add(Case("conf_missing_one", "missing files", _conf(None, skip="end/conf/000.npy")))
+    add(Case("conf_one_state_only", "missing files", _conf(None, skip="end/conf")))
     # ---- a hostile path: the error line must stay one line
     add(Case("newline_in_scene_name", "hostile paths", _rename_scene_with_newline, scene_name="sc\nene\x1b[31m"))
     # ---- --out

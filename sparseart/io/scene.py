@@ -33,7 +33,13 @@ def load_scene(root: str | Path, require_depth: bool = True) -> Scene:
 
     Returns:
         A :class:`Scene` whose frames hold rgb (H, W, 3) uint8, depth (H, W) float64 metres,
-        masks (H, W) int64 and cameras (K and optional cam_to_world, float64).
+        masks (H, W) int64, depth confidence (H, W) float64 in [0, 1] and cameras (K and optional
+        cam_to_world, float64).
+
+    Depth confidence (``{state}/conf/NNN.npy``, optional): read when a state has a ``conf/``
+    folder; then every image of that state needs one, and like depth and masks it is all or none
+    over the scene (confidence for one state only would weigh the two states' points
+    differently); it needs depth (``conf/`` without ``depth/`` is an error, not ignored).
 
     Raises:
         SceneError: one line naming the file and the problem.
@@ -192,6 +198,14 @@ def _read_mask(path: Path, match: tuple[Path, int, int] | None = None) -> np.nda
     return raw.astype(np.int64)
 
 
+def _read_confidence(path: Path, depth_path: Path, depth_shape: tuple[int, int]) -> np.ndarray:
+    confidence = check.read_npy_file(path, kinds="f")
+    if confidence.shape != depth_shape:
+        raise check._fail(path, f"depth confidence size {confidence.shape[1]}x{confidence.shape[0]} does not match "
+                                f"depth {depth_path.name} ({depth_shape[1]}x{depth_shape[0]})")
+    return check.check_depth_confidence(confidence, path)
+
+
 def _find_companion(folder: Path, stem: str, suffixes: tuple[str, ...]) -> Path | None:
     for suffix in suffixes:
         candidate = folder / f"{stem}{suffix}"
@@ -217,7 +231,7 @@ def _read_state(root: Path, state: str, cameras: dict | None, depth_scale: float
     if len(image_paths) > MAX_VIEWS_PER_STATE:
         warnings.append(f"{rgb_dir}: {len(image_paths)} images; 1-{MAX_VIEWS_PER_STATE} per state "
                         f"is the supported range, all are used")
-    depth_dir, mask_dir = state_dir / "depth", state_dir / "mask"
+    depth_dir, mask_dir, conf_dir = state_dir / "depth", state_dir / "mask", state_dir / "conf"
     camera_path = root / "cameras.json"
     entries = cameras.get(state, []) if cameras else []
     frames = []
@@ -235,6 +249,15 @@ def _read_state(root: Path, state: str, cameras: dict | None, depth_scale: float
             if frame.depth.shape != (height, width):
                 raise SceneError(f"{depth_path}: size {frame.depth.shape[1]}x{frame.depth.shape[0]} "
                                  f"does not match image {rgb_path.name} ({width}x{height})")
+        if conf_dir.is_dir():
+            conf_path = _find_companion(conf_dir, rgb_path.stem, (".npy",))
+            if conf_path is None:
+                raise SceneError(f"{conf_dir}: no depth confidence for {rgb_path.name} (expected {rgb_path.stem}.npy)")
+            if frame.depth is None:
+                raise SceneError(f"{conf_path}: depth confidence without depth (add {state}/depth/ or remove "
+                                 f"{state}/conf/)")
+            frame.depth_confidence = _read_confidence(conf_path, frame.depth_path, frame.depth.shape)
+            frame.confidence_path = conf_path
         if mask_dir.is_dir():
             mask_path = _find_companion(mask_dir, rgb_path.stem, (".png",))
             if mask_path is None:
@@ -264,6 +287,11 @@ def _check_consistency(scene: Scene, require_depth: bool) -> None:
     if require_depth and not with_depth:
         raise SceneError(f"{scene.root}: no depth/ folders; an RGB-only scene needs a reconstructor "
                          f"model (--model)")
+    with_conf = [f for f in scene.all_frames if f.depth_confidence is not None]
+    if with_conf and len(with_conf) != len(scene.all_frames):
+        missing = next(f for f in scene.all_frames if f.depth_confidence is None)
+        raise SceneError(f"{missing.rgb_path}: has no depth confidence ({missing.state}/conf/{missing.rgb_path.stem}"
+                         f".npy) while other images do (give conf/ for every image or none)")
     with_masks = [f for f in scene.all_frames if f.mask is not None]
     if with_masks and len(with_masks) != len(scene.all_frames):
         missing = next(f for f in scene.all_frames if f.mask is None)

@@ -24,6 +24,8 @@ What is checked, and the limits (module constants, so they can be quoted and tes
 * **Numeric ranges**: ``depth_scale`` in ``DEPTH_SCALE_RANGE``; focal lengths within
   ``FOCAL_RANGE`` times the image's larger side; principal point within one image size of the
   image; positive depths and camera positions within ``DEPTH_RANGE_METRES`` / ``MAX_COORDINATE``.
+* **Depth confidence** (``conf/NNN.npy``): a float ``.npy`` like depth, the depth's size, every
+  value finite and in [0, 1] (:func:`check_depth_confidence`).
 * **Masks**: at most ``MAX_MASK_IDS`` ids per image, and at least ``MIN_MASK_COVERAGE`` of the
   labelled pixels in ids of ``MIN_MASK_SEGMENT_PIXELS`` pixels or more (a mask cut into thousands
   of specks carries no part information).
@@ -537,6 +539,22 @@ def check_depth_metres(depth: np.ndarray, path: Path | str) -> np.ndarray:
                                   f"and the depth unit)")
             depth = np.where(tiny, 0.0, depth)
     return depth
+
+
+def check_depth_confidence(confidence: np.ndarray, path: Path | str) -> np.ndarray:
+    """A depth confidence map (``conf/NNN.npy``): every value finite and within [0, 1] (a NaN or a
+    value outside is an error, not clipped: the map is not what the contract says, so no value in
+    it can be trusted). Returns (H, W) float64. O(H W)."""
+    with np.errstate(all="ignore"):
+        confidence = np.asarray(confidence, dtype=np.float64)
+        finite = np.isfinite(confidence)
+        if not finite.all():
+            raise _fail(path, f"depth confidence has {int((~finite).sum())} non-finite values (NaN or inf); "
+                              f"values must lie in [0, 1]")
+        low, high = float(confidence.min()), float(confidence.max())
+        if low < 0.0 or high > 1.0:
+            raise _fail(path, f"depth confidence values must lie in [0, 1], got {low:g} .. {high:g}")
+    return confidence
 
 
 def check_mask_ids(mask: np.ndarray, path: Path | str) -> None:

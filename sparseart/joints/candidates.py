@@ -48,7 +48,8 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
         try:
             joint = fit_part(start.points[start_mask], end.points[end_mask], start.colors[start_mask],
                              end.colors[end_mask], part_type, seeds, static_points, config,
-                             support_points=support_points)
+                             support_points=support_points, start_confidence=start.confidence[start_mask],
+                             end_confidence=end.confidence[end_mask])
         except ValueError as error:
             warnings.append(f"part {spec.id}: joint fit failed: {error}")
             continue
@@ -61,14 +62,16 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
 
 def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndarray, end_colors: np.ndarray,
              joint_type: str, seeds: list[np.ndarray | None], static_points: np.ndarray | None,
-             config: FitConfig | None = None, support_points: np.ndarray | None = None) -> JointEstimate:
+             config: FitConfig | None = None, support_points: np.ndarray | None = None,
+             start_confidence: np.ndarray | None = None, end_confidence: np.ndarray | None = None) -> JointEstimate:
     """Fit one part's joint from every seed motion (the labeler's, its tied alternatives, and for
     a slab the mirror of the best fit) and keep the one :func:`choose_fit` prefers.
 
     part_start / part_end: (N, 3) / (M, 3) float64 points of the part, scene frame.
     Raises ValueError (from the fitter) when no seed gives a fit.
     """
-    colours = dict(start_colors=start_colors, end_colors=end_colors, config=config)
+    colours = dict(start_colors=start_colors, end_colors=end_colors, config=config,
+                   start_confidence=start_confidence, end_confidence=end_confidence)
     candidates, errors = [], []
     for seed in seeds:
         try:

@@ -55,6 +55,15 @@ class FitConfig:
         warm-started at the optimum, one step each (< 2: off); ~5 ms each.
     uncertainty_floor: add the calibrated systematic floor (``UNCERTAINTY_FLOOR``) to the stated sigma.
     clean: outlier / fragment removal (``clean.clean_part_points``) before fitting.
+    confidence_weights: when the points come with a confidence (``fit_joint(start_confidence=,
+        end_confidence=)``; the pipeline passes the labelled clouds' confidence, i.e. a scene's
+        ``conf/`` maps), weight each matched pair's residual, and each Chamfer nearest-neighbour
+        residual, by sqrt(c_start c_end) on top of the distance-proportional weights
+        (``optimise.confidence_pair_weights``). Off by default: on 7 rendered realistic objects
+        it did not help (posed median axis error 3.64 -> 3.70 deg, mean position 27 -> 29 mm;
+        unposed median 3.10 -> 2.95 deg, no type change; benchmarks/results/confidence_realistic.txt)
+        -- there the errors come from labels, partial views and per-view warps / scales, which the
+        confidence does not single out. False, or no / all-one confidences, fits exactly as without.
     seed: every random choice of the fit.
     """
 
@@ -83,6 +92,7 @@ class FitConfig:
     pair_tau_factor: float = 3.0
     normal_gate_deg: float = 45.0
     clean: bool = True
+    confidence_weights: bool = False
     seed: int = 0
 
     @classmethod

@@ -152,6 +152,8 @@ def fit_joint(
     end_colors: np.ndarray | None = None,
     config: FitConfig | None = None,
     uncertainty: bool = True,
+    start_confidence: np.ndarray | None = None,
+    end_confidence: np.ndarray | None = None,
 ) -> JointEstimate:
     """Fit the joint that moves a part from ``start_points`` to ``end_points``.
 
@@ -162,7 +164,10 @@ def fit_joint(
     the initial registration only. config: ``FitConfig`` (``FitConfig.for_budget(name)``).
     uncertainty: False skips the resampling terms of the stated sigma (jackknife, half-samples:
     ~20 % of a call) -- for candidate fits a search may discard; the sigma is then the Jacobian
-    + floor part only and ``diagnostics["uncertainty_complete"]`` is False. Calling again with the
+    + floor part only and ``diagnostics["uncertainty_complete"]`` is False.
+    start_confidence (N,) / end_confidence (M,): optional per-point depth confidences in [0, 1];
+    matched pairs are weighted by sqrt(c_start c_end) (``FitConfig.confidence_weights``,
+    ``part.prepare_part``); None or all ones fits exactly as without them. Calling again with the
     same arrays, seed, type and config and ``uncertainty=True`` reuses the remembered model fits
     and pays only the uncertainty step.
     Returns a ``JointEstimate`` in the input frame and units: angle >= 0 radians (axis oriented
@@ -178,7 +183,8 @@ def fit_joint(
     if joint_type not in ("auto", "revolute", "prismatic"):
         raise ValueError(f"fit_joint: joint_type must be auto, revolute or prismatic, got {joint_type!r}")
     clock = _Clock()
-    part = prepare_part(start_points, end_points, config)
+    part = prepare_part(start_points, end_points, config, start_confidence=start_confidence,
+                        end_confidence=end_confidence)
     _check_colours(start_colors, part.input_counts[0], "start_points")
     _check_colours(end_colors, part.input_counts[1], "end_points")
     clock.lap("prepare")

@@ -43,7 +43,9 @@ NORMAL_NEIGHBOURS = 12
 class Sample:
     """A fixed subsample of both states (normalised units): points, unoriented normals, the end
     points' k-d tree and the matching scale of that density: ``spacing`` = median nearest-
-    neighbour distance of the end points, pairs clipped within [floor, ceiling] = [2, 8] x spacing."""
+    neighbour distance of the end points, pairs clipped within [floor, ceiling] = [2, 8] x spacing.
+    start_confidence / end_confidence: the rows' depth confidences in [0, 1] (float64), or None
+    when unknown (every point counts fully; ``optimise.confidence_pair_weights``)."""
 
     start: np.ndarray
     end: np.ndarray
@@ -51,6 +53,8 @@ class Sample:
     end_normals: np.ndarray
     end_tree: cKDTree
     spacing: float
+    start_confidence: np.ndarray | None = None
+    end_confidence: np.ndarray | None = None
 
     @property
     def floor(self) -> float:
@@ -117,25 +121,34 @@ def fingerprint(array: np.ndarray) -> tuple:
 
 
 def prepare_part(start_points: np.ndarray, end_points: np.ndarray, config: FitConfig | None = None,
-                 cache: bool = True) -> PartData:
+                 cache: bool = True, start_confidence: np.ndarray | None = None,
+                 end_confidence: np.ndarray | None = None) -> PartData:
     """``PartData`` of one part's start (N, 3) / end (M, 3) points (any frame and units).
 
     cache: reuse / remember the result for the same arrays and config (``CACHE_SIZE`` entries).
+    start_confidence / end_confidence: optional (N,) / (M,) per-point confidences in [0, 1]
+    (a scene's depth confidence), carried with the matching and Chamfer samples
+    (``Sample.start_confidence``) so the fit can weight pairs by them. Ignored when
+    ``config.confidence_weights`` is False or when both are None / all ones (then the result is
+    exactly the one without them). Cleaning and sampling never look at them.
     Raises ValueError for a bad shape, fewer than 5 finite points per state or coincident points.
     O(W log W), W = min(N, ``config.max_work_points``) (+ O(N) hashing when cached).
     """
     config = config or FitConfig()
     start_points = _as_points(start_points, "start_points")
     end_points = _as_points(end_points, "end_points")
+    confidences = _as_confidences(start_confidence, end_confidence, start_points, end_points, config)
     if not cache:
-        return _prepare(start_points, end_points, config)
+        return _prepare(start_points, end_points, config, confidences)
     key = (fingerprint(start_points), fingerprint(end_points), astuple(config))
+    if confidences is not None:
+        key += (fingerprint(confidences[0]), fingerprint(confidences[1]))
     with _cache_lock:
         hit = _cache.get(key)
         if hit is not None:
             _cache.move_to_end(key)
             return hit
-    part = replace(_prepare(start_points, end_points, config), key=key)
+    part = replace(_prepare(start_points, end_points, config, confidences), key=key)
     with _cache_lock:
         _cache[key] = part
         while len(_cache) > CACHE_SIZE:
@@ -156,12 +169,41 @@ def _as_points(points: np.ndarray, name: str) -> np.ndarray:
     return points
 
 
-def _prepare(start_points: np.ndarray, end_points: np.ndarray, config: FitConfig) -> PartData:
+def _as_confidences(start_confidence: np.ndarray | None, end_confidence: np.ndarray | None,
+                    start_points: np.ndarray, end_points: np.ndarray,
+                    config: FitConfig) -> tuple[np.ndarray, np.ndarray] | None:
+    """Both states' confidences as float64 (a missing side = ones), or None when they cannot
+    change the fit (``confidence_weights`` off, none given, or all ones). ValueError for a wrong
+    shape or a value outside [0, 1] (NaN included). O(N)."""
+    if not config.confidence_weights or (start_confidence is None and end_confidence is None):
+        return None
+    result = []
+    for name, confidence, points in (("start_confidence", start_confidence, start_points),
+                                     ("end_confidence", end_confidence, end_points)):
+        if confidence is None:
+            result.append(np.ones(len(points)))
+            continue
+        confidence = np.asarray(confidence, dtype=np.float64)
+        if confidence.shape != (len(points),):
+            raise ValueError(f"fit_joint: {name} must have shape ({len(points)},), got {confidence.shape}")
+        if not np.all((confidence >= 0.0) & (confidence <= 1.0)):
+            raise ValueError(f"fit_joint: {name} must lie in [0, 1]")
+        result.append(confidence)
+    if all(np.all(c == 1.0) for c in result):
+        return None
+    return result[0], result[1]
+
+
+def _prepare(start_points: np.ndarray, end_points: np.ndarray, config: FitConfig,
+             confidences: tuple[np.ndarray, np.ndarray] | None = None) -> PartData:
     rng = np.random.default_rng(config.seed)
     warnings: list[FitWarning] = []
     start_rows = _working_rows(start_points, "start_points", config, rng, warnings)
     end_rows = _working_rows(end_points, "end_points", config, rng, warnings)
     start, end = start_points[start_rows], end_points[end_rows]
+    start_conf = end_conf = None
+    if confidences is not None:
+        start_conf, end_conf = confidences[0][start_rows], confidences[1][end_rows]
     everything = np.concatenate([start, end])
     centre = everything.mean(axis=0)
     scale = float(np.sqrt(np.mean(np.sum((everything - centre) ** 2, axis=1))))
@@ -169,8 +211,8 @@ def _prepare(start_points: np.ndarray, end_points: np.ndarray, config: FitConfig
         raise ValueError("fit_joint: all points coincide; no motion can be estimated")
     start, end = (start - centre) / scale, (end - centre) / scale
     start_tree, end_tree = cKDTree(start), cKDTree(end)
-    match = _sample(start, end, start_tree, end_tree, config.max_match_points, rng)
-    chamfer = _sample(start, end, start_tree, end_tree, config.max_chamfer_points, rng)
+    match = _sample(start, end, start_tree, end_tree, config.max_match_points, rng, start_conf, end_conf)
+    chamfer = _sample(start, end, start_tree, end_tree, config.max_chamfer_points, rng, start_conf, end_conf)
     screen = _subsample(match, config.screen_points, rng) if config.screen_points > 0 else match
     reference = start.mean(axis=0)
     centred = start - reference
@@ -212,13 +254,19 @@ def _working_rows(points: np.ndarray, name: str, config: FitConfig, rng: np.rand
     return rows
 
 
+def _pick(values: np.ndarray | None, rows: np.ndarray) -> np.ndarray | None:
+    return None if values is None else values[rows]
+
+
 def _sample(start: np.ndarray, end: np.ndarray, start_tree: cKDTree, end_tree: cKDTree, count: int,
-            rng: np.random.Generator) -> Sample:
+            rng: np.random.Generator, start_conf: np.ndarray | None = None,
+            end_conf: np.ndarray | None = None) -> Sample:
     pick_start = random_subset(len(start), count, rng)
     pick_end = random_subset(len(end), count, rng)
     return _make_sample(start[pick_start], end[pick_end],
                         estimate_normals(start, NORMAL_NEIGHBOURS, at=pick_start, tree=start_tree),
-                        estimate_normals(end, NORMAL_NEIGHBOURS, at=pick_end, tree=end_tree))
+                        estimate_normals(end, NORMAL_NEIGHBOURS, at=pick_end, tree=end_tree),
+                        _pick(start_conf, pick_start), _pick(end_conf, pick_end))
 
 
 def _subsample(sample: Sample, count: int, rng: np.random.Generator) -> Sample:
@@ -227,10 +275,12 @@ def _subsample(sample: Sample, count: int, rng: np.random.Generator) -> Sample:
     pick_start = random_subset(len(sample.start), count, rng)
     pick_end = random_subset(len(sample.end), count, rng)
     return _make_sample(sample.start[pick_start], sample.end[pick_end], sample.start_normals[pick_start],
-                        sample.end_normals[pick_end])
+                        sample.end_normals[pick_end], _pick(sample.start_confidence, pick_start),
+                        _pick(sample.end_confidence, pick_end))
 
 
-def _make_sample(start: np.ndarray, end: np.ndarray, start_normals: np.ndarray, end_normals: np.ndarray) -> Sample:
+def _make_sample(start: np.ndarray, end: np.ndarray, start_normals: np.ndarray, end_normals: np.ndarray,
+                 start_confidence: np.ndarray | None = None, end_confidence: np.ndarray | None = None) -> Sample:
     tree = cKDTree(end)
     spacing = median_spacing(end, tree=tree) if len(end) > 1 else 0.0
-    return Sample(start, end, start_normals, end_normals, tree, spacing)
+    return Sample(start, end, start_normals, end_normals, tree, spacing, start_confidence, end_confidence)

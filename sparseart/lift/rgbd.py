@@ -71,7 +71,9 @@ def pointmap_from_depth(frame: Frame, cam_to_world: np.ndarray | None = None,
         reject_flying_pixels: drop pixels on depth discontinuities (see :func:`flying_pixel_mask`).
 
     Returns:
-        Pointmap with (H*W, 3) float64 points in the scene frame (NaN where invalid). O(H W).
+        Pointmap with (H*W, 3) float64 points in the scene frame (NaN where invalid) and
+        confidence (H*W,) float64: the frame's ``depth_confidence`` (``conf/NNN.npy``) at valid
+        pixels, or 1 there when the scene gives none; 0 at invalid pixels. O(H W).
     """
     if frame.depth is None or frame.camera is None:
         raise ValueError(f"{frame.rgb_path}: RGB-D lifting needs depth and K")
@@ -88,5 +90,7 @@ def pointmap_from_depth(frame: Frame, cam_to_world: np.ndarray | None = None,
     valid_flat = valid.reshape(-1)
     points[~valid_flat] = np.nan
     confidence = valid_flat.astype(np.float64)
+    if frame.depth_confidence is not None:
+        confidence *= np.asarray(frame.depth_confidence, dtype=np.float64).reshape(-1)
     return Pointmap(state=frame.state, frame_index=frame.index, height=height, width=width,
                     points=points, valid=valid_flat, confidence=confidence)
