@@ -289,3 +289,14 @@ def test_summarise_empty():
     s = summarise([])
     assert s["count"] == 0
     assert s["axis_deg_mean"] is None and s["type_accuracy"] is None
+
+
+def test_summarise_sigma_coverage_counts_successful_joints_with_a_stated_sigma():
+    rows = [{"axis_deg": 0.5, "axis_sigma_deg": 1.0, "type_correct": True, "position": 0.0, "state": 0.0},
+            {"axis_deg": 2.0, "axis_sigma_deg": 1.0, "type_correct": True, "position": 0.0, "state": 0.0},
+            {"axis_deg": 3.0, "axis_sigma_deg": 4.0, "type_correct": True, "position": 0.0, "state": 0.0},
+            {"axis_deg": 40.0, "axis_sigma_deg": 50.0, "type_correct": True, "position": 0.0, "state": 0.0},
+            {"axis_deg": 1.0, "axis_sigma_deg": None, "type_correct": True, "position": 0.0, "state": 0.0}]
+    out = summarise(rows)
+    assert out["sigma_count"] == 3 and out["sigma_coverage"] == pytest.approx(2 / 3)   # failures and no-sigma left out
+    assert summarise(rows[3:])["sigma_coverage"] is None

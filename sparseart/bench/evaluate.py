@@ -104,7 +104,10 @@ def evaluate(result: Articulation, scene: Scene, gt: dict[str, Any]) -> list[dic
         pred = {"type": joint.type, "axis": to_world[:3, :3] @ joint.axis,
                 "origin": to_world[:3, :3] @ joint.origin + to_world[:3, 3],
                 "angle": joint.angle, "distance": joint.distance}
-        rows[k] = {**metrics.joint_errors(pred, gt_joints[k]), "part": part.spec.id}
+        sigma = (joint.uncertainty or {}).get("axis_deg")
+        rows[k] = {**metrics.joint_errors(pred, gt_joints[k]), "part": part.spec.id,
+                   "axis_sigma_deg": None if sigma is None or not np.isfinite(sigma) else float(sigma),
+                   "confidence": float(joint.confidence)}
     for k in unmatched:
         rows[k] = {**metrics.unmatched_joint_errors(gt_joints[k], position_max=scale), "part": None}
     for row, g in zip(rows, gt_joints):

@@ -201,16 +201,17 @@ def _fmt(value: Any, digits: int = 3) -> str:
 
 def summary_table(summary: list[dict[str, Any]]) -> str:
     """One line per setting and method: type accuracy, success, axis mean/median, position median,
-    state medians, median seconds."""
+    state medians, median seconds, and the share of successful joints whose axis error is within the
+    stated 1-sigma (``1σ cov``; ~63 % is honest for the axis angle)."""
     header = (f"{'setting':17s} {'method':9s} {'n':>3s} {'type':>5s} {'succ':>5s} {'axis mean':>9s} "
-              f"{'axis med':>8s} {'pos med':>8s} {'rev° med':>8s} {'pris med':>8s} {'sec med':>7s}")
+              f"{'axis med':>8s} {'pos med':>8s} {'rev° med':>8s} {'pris med':>8s} {'sec med':>7s} {'1σ cov':>6s}")
     lines = [header]
     for s in summary:
         lines.append(f"{s['setting']:17s} {s['method']:9s} {s['count']:3d} {_fmt(s['type_accuracy'], 2):>5s} "
                      f"{_fmt(s['success_rate'], 2):>5s} {_fmt(s['axis_deg_mean'], 2):>9s} "
                      f"{_fmt(s['axis_deg_median'], 2):>8s} {_fmt(s['position_median'], 4):>8s} "
                      f"{_fmt(s['state_revolute_deg_median'], 2):>8s} {_fmt(s['state_prismatic_median'], 4):>8s} "
-                     f"{_fmt(s['seconds_median'], 2):>7s}")
+                     f"{_fmt(s['seconds_median'], 2):>7s} {_fmt(s.get('sigma_coverage'), 2):>6s}")
     return "\n".join(lines)
 
 

@@ -405,6 +405,9 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     * ``position_mean``, ``position_median``: object units (not x10), over revolute gt joints.
     * ``state_revolute_deg_mean`` / ``_median``: degrees, over revolute gt joints.
     * ``state_prismatic_mean`` / ``_median``: frame units, over prismatic gt joints.
+    * ``sigma_coverage``: over the successful joints with a stated axis sigma (``axis_sigma_deg``),
+      the fraction whose axis error is within it (honest: ~63 % for the axis angle, the norm of
+      two tangent components); ``sigma_count``: how many such joints.
 
     Statistics over an empty set are ``None`` (never NaN). The gt type is read from
     ``gt_type``; dicts without it are taken as revolute when ``position`` is not None.
@@ -433,6 +436,10 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "type_accuracy": n_type / n if n else None,
         "success_rate": n_success / n if n else None,
     }
+    covered = [float(e["axis_deg"]) <= float(e["axis_sigma_deg"]) for e in errors
+               if e.get("axis_sigma_deg") is not None and float(e["axis_deg"]) < SUCCESS_AXIS_DEG]
+    out["sigma_count"] = len(covered)
+    out["sigma_coverage"] = sum(covered) / len(covered) if covered else None
     for key, vals in (("axis_deg", axis), ("position", pos),
                       ("state_revolute_deg", st_rev), ("state_prismatic", st_pri)):
         mean, median = _stats(vals)
