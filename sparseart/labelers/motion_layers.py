@@ -10,6 +10,14 @@ physics-aware cost); every motion then rates every moved point of both states:
   cannot see (a drawer pushed shut hides its sides in the carcass),
 * 0 when it lands on some other surface the views saw, -1 when the views saw through that spot.
 
+Moved points the split marked unseen (far from the other state's cloud, but hidden in its views:
+the base under a lid that closed over it) have no vote: they add nothing to the selection objective,
+earn nothing from landing hidden or on each other, and only join a chosen motion that carries them
+onto the other state's moved points. A turning slab (lid, door) also gets its mirrored twins as
+candidates (the motion composed with the slab's half-turns, which registration cannot tell apart);
+the objective's physics charge decides. Chosen motions whose layers touch and agree (the larger
+one's motion carries the smaller one's points within the full inlier radius) are merged.
+
 Moved points that no motion explains (rated <= 0 by all: e.g. a twin drawer's front that the
 other drawer's motion puts in free space) form residual pieces; each is registered onto the other
 state's unexplained moved points and its motion joins when it hits at least a part's worth of
@@ -39,8 +47,39 @@ PIECE_SHARE = 0.03          # moved pieces at least this share of the moved poin
 LAYER_MIN_SHARE = 0.1       # a layer must hold this share of each state's moved points
 PRICE_SHARE = 0.03          # a motion (part) must explain more than this share of the moved points
 MAX_TURN_DEG = 150.0        # candidate motions turning more are left out (real joints rarely do)
+MERGE_HIT_SHARE = 0.6      # a touching layer the larger one's motion explains this much joins it
+MIRROR_MIN_TURN_DEG = 10.0  # turning motions of slabs get their mirrored twins as candidates
+SLAB_THICKNESS_SHARE = 0.3  # a slab: third principal extent below this share of the second
 HIT_RADIUS_SHARE = 0.5      # a hit lands within this share of the inlier radius (a motion blending
                             # two twins' slides a radius apart misses both)
+
+
+def _slab_mirrors(ratings: "_Ratings", k: int) -> list[np.ndarray]:
+    """A turning motion composed with the half-turns that map its part onto itself when the part
+    is a slab (a lid, a door: two principal extents well above the thickness): T S_a for the
+    half-turn S_a about each in-plane principal axis through the part's centroid. Registration
+    cannot tell these apart on a symmetric slab (a lid closed by 96 deg and the lid flipped onto
+    itself by 84 deg land on the same plane); the whole-object objective (hits, and physics: a
+    hinge's sweep must not pass through seen surfaces) decides."""
+    transform = ratings.motions[k]
+    if motion_size(transform)[0] < MIRROR_MIN_TURN_DEG:
+        return []
+    row = ratings.rows[k]
+    own = ratings.start_moved[row[:len(ratings.start_moved)] >= 1.0]
+    if len(own) < 30:
+        return []
+    points = ratings.start.points[own]
+    centre = points.mean(axis=0)
+    _, singular, axes = np.linalg.svd(points - centre, full_matrices=False)
+    if singular[2] > SLAB_THICKNESS_SHARE * singular[1]:
+        return []
+    result = []
+    for axis in axes[:2]:
+        half = np.eye(4)
+        half[:3, :3] = 2.0 * np.outer(axis, axis) - np.eye(3)
+        half[:3, 3] = centre - half[:3, :3] @ centre
+        result.append(transform @ half)
+    return result
 
 
 @dataclass
@@ -57,10 +96,15 @@ class MotionLayer:
 class _Ratings:
     """Ratings of the moved points of both states under the motions."""
 
-    def __init__(self, context: PairContext, start_moved: np.ndarray, end_moved: np.ndarray) -> None:
+    def __init__(self, context: PairContext, start_moved: np.ndarray, end_moved: np.ndarray,
+                 unseen: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         self.context = context
         self.start, self.end = context.start, context.end
         self.start_moved, self.end_moved = start_moved, end_moved
+        if unseen is None:
+            unseen = (np.zeros(len(start_moved), dtype=bool), np.zeros(len(end_moved), dtype=bool))
+        self.start_unseen, self.end_unseen = (np.asarray(u, dtype=bool) for u in unseen)
+        self.unseen = np.concatenate([self.start_unseen, self.end_unseen])
         self.radius = HIT_RADIUS_SHARE * context.radius
         self.start_tree = cKDTree(self.start.points[start_moved])
         self.end_tree = cKDTree(self.end.points[end_moved])
@@ -71,19 +115,26 @@ class _Ratings:
         self.physics: list[float] = []
         self.slides: list[float] = []
 
-    def _rate(self, points: np.ndarray, tree: cKDTree, views: StateViews) -> np.ndarray:
-        hits = tree.query(points, k=1, distance_upper_bound=self.radius)[0] < self.radius
+    def _rate(self, points: np.ndarray, tree: cKDTree, views: StateViews, own_unseen: np.ndarray,
+              target_unseen: np.ndarray) -> np.ndarray:
+        distance, index = tree.query(points, k=1, distance_upper_bound=self.radius)
+        hits = distance < self.radius
+        # Unseen points (hidden in the other state, no vote in the split) earn nothing from each
+        # other: two occluded table patches match under any slide along the table.
+        hits[hits] &= ~(own_unseen[hits] & target_unseen[index[hits]])
         rating = hits.astype(np.float64)
         if views:
             labels = views.classify(points[~hits])
             rating[~hits] = np.where(labels == HIDDEN, HIDDEN_CREDIT, np.where(labels == VIOLATION, -1.0, 0.0))
+        # An unseen point carried to where the other state cannot see either: no evidence at all.
+        rating[own_unseen & (rating == HIDDEN_CREDIT)] = 0.0
         return rating
 
     def rate(self, transform: np.ndarray) -> np.ndarray:
         forward = self._rate(apply(transform, self.start.points[self.start_moved]), self.end_tree,
-                             self.context.end_views)
+                             self.context.end_views, self.start_unseen, self.end_unseen)
         backward = self._rate(apply(np.linalg.inv(transform), self.end.points[self.end_moved]), self.start_tree,
-                              self.context.start_views)
+                              self.context.start_views, self.end_unseen, self.start_unseen)
         return np.concatenate([forward, backward])
 
     def tighten(self, transform: np.ndarray) -> np.ndarray:
@@ -162,7 +213,8 @@ class _Ratings:
 
 def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.ndarray,
                   motions: list[np.ndarray], min_points: int,
-                  pieces: tuple[list[np.ndarray], list[np.ndarray]] = ([], [])) -> tuple[list[MotionLayer], list[str]]:
+                  pieces: tuple[list[np.ndarray], list[np.ndarray]] = ([], []),
+                  unseen: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[list[MotionLayer], list[str]]:
     """Split the moved points of both states into rigid motions (module doc).
 
     context: the pair context of the two states (work clouds, radius, views, static frame);
@@ -174,7 +226,7 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
     notes: list[str] = []
     if len(start_moved) == 0 or len(end_moved) == 0:
         return [], notes
-    ratings = _Ratings(context, start_moved, end_moved)
+    ratings = _Ratings(context, start_moved, end_moved, unseen)
     rng = np.random.default_rng(context.seed + 7)
     pool = list(motions)
     big = max(min_points, int(PIECE_SHARE * (len(start_moved) + len(end_moved)) / 2))
@@ -190,6 +242,11 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
         transform = ratings.tighten(transform)
         if not ratings.known(transform):
             ratings.add(transform)
+    for k in range(len(ratings.motions)):
+        for mirrored in _slab_mirrors(ratings, k):
+            mirrored = ratings.tighten(mirrored)
+            if motion_size(mirrored)[0] <= MAX_TURN_DEG and not ratings.known(mirrored):
+                ratings.add(mirrored)
     price = max(float(min_points), PRICE_SHARE * (len(start_moved) + len(end_moved)))
     chosen = _select(ratings, price)
     for _ in range(RESIDUAL_ROUNDS):
@@ -206,7 +263,7 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
         if not added:
             break
         chosen = _select(ratings, price)
-    layers = _assign_points(ratings, chosen)
+    layers = _merge_agreeing(ratings, _assign_points(ratings, chosen))
     floor_s = max(min_points, LAYER_MIN_SHARE * len(start_moved))
     floor_e = max(min_points, LAYER_MIN_SHARE * len(end_moved))
     layers = [layer for layer in layers if len(layer.start) >= floor_s and len(layer.end) >= floor_e]
@@ -215,12 +272,12 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
 
 
 def _objective(ratings: _Ratings, chosen: list[int], price: float) -> float:
-    """Whole-object explanation of a motion set: the sum over moved points of their best rating
-    (>= 0), minus ``price`` per motion and, per motion, its physics charge (blocked share and
+    """Whole-object explanation of a motion set: the sum over moved points that were seen (unseen
+    points have no vote: they join a chosen motion afterwards) of their best rating (>= 0), minus ``price`` per motion and, per motion, its physics charge (blocked share and
     slide sine, weighted as in the pair cost) times the points it claims."""
     if not chosen:
         return 0.0
-    table = np.stack([ratings.rows[k] for k in chosen])
+    table = np.stack([ratings.rows[k] for k in chosen])[:, ~ratings.unseen]
     best = table.max(axis=0)
     owner = table.argmax(axis=0)
     value = float(np.clip(best, 0.0, None).sum()) - price * len(chosen)
@@ -272,8 +329,8 @@ def _residual_pieces(ratings: _Ratings, chosen: list[int], radius: float,
     n_start = len(ratings.start_moved)
     best = (np.stack([ratings.rows[k] for k in chosen]).max(axis=0) if chosen
             else np.zeros(n_start + len(ratings.end_moved)))
-    loose_s = ratings.start_moved[best[:n_start] <= 0]
-    loose_e = ratings.end_moved[best[n_start:] <= 0]
+    loose_s = ratings.start_moved[(best[:n_start] <= 0) & ~ratings.start_unseen]
+    loose_e = ratings.end_moved[(best[n_start:] <= 0) & ~ratings.end_unseen]
     pairs = []
     for loose, other_loose, cloud, other_all in ((loose_s, loose_e, ratings.start, ratings.end_moved),
                                                  (loose_e, loose_s, ratings.end, ratings.start_moved)):
@@ -286,6 +343,58 @@ def _residual_pieces(ratings: _Ratings, chosen: list[int], radius: float,
             partner = other_loose if len(other_loose) >= min_points else other_all
             pairs.append((piece, partner) if cloud is ratings.start else (partner, piece))
     return pairs
+
+
+def _hit_share(ratings: _Ratings, transform: np.ndarray, start_idx: np.ndarray, end_idx: np.ndarray,
+               radius: float) -> float:
+    """Share of the given moved points (work indices) that ``transform`` carries within ``radius``
+    of the other state's moved points (both directions). O(P log N)."""
+    if len(start_idx) + len(end_idx) == 0:
+        return 0.0
+    forward = ratings.end_tree.query(apply(transform, ratings.start.points[start_idx]), k=1,
+                                     distance_upper_bound=radius)[0] < radius
+    backward = ratings.start_tree.query(apply(np.linalg.inv(transform), ratings.end.points[end_idx]), k=1,
+                                        distance_upper_bound=radius)[0] < radius
+    return float((forward.sum() + backward.sum()) / (len(start_idx) + len(end_idx)))
+
+
+def _merge_agreeing(ratings: _Ratings, layers: list[MotionLayer]) -> list[MotionLayer]:
+    """Layers of one part: the selection rates hits with a tight radius (twins a radius apart stay
+    apart), so one part whose registration is a little off in different places can come out as
+    several nearly equal motions, each claiming a patch. A layer whose points the motion of a
+    larger layer, which it touches, carries onto the other state within the full inlier radius
+    (share >= ``MERGE_HIT_SHARE``) joins it; the merged layer keeps the larger one's motion
+    (the part's final registration refines it on all of its points). O(L^2 P log N)."""
+    layers = sorted(layers, key=lambda layer: -(len(layer.start) + len(layer.end)))
+    radius = ratings.context.radius
+    merged = True
+    while merged:
+        merged = False
+        for a in range(len(layers)):
+            for b in range(a + 1, len(layers)):
+                big, small = layers[a], layers[b]
+                if not _touching(ratings, big, small, radius):
+                    continue
+                if _hit_share(ratings, big.transform, small.start, small.end, radius) >= MERGE_HIT_SHARE:
+                    layers[a] = MotionLayer(big.transform, big.physics, np.union1d(big.start, small.start),
+                                            np.union1d(big.end, small.end))
+                    del layers[b]
+                    merged = True
+                    break
+            if merged:
+                break
+    return layers
+
+
+def _touching(ratings: _Ratings, a: MotionLayer, b: MotionLayer, radius: float) -> bool:
+    """Do two layers touch (within ``ADJACENT_RADII`` radii) in either state?"""
+    for cloud, ia, ib in ((ratings.start, a.start, b.start), (ratings.end, a.end, b.end)):
+        if len(ia) and len(ib):
+            probe = ib[:: max(1, len(ib) // 500)]
+            gap = cKDTree(cloud.points[ia]).query(cloud.points[probe], k=1, distance_upper_bound=3.0 * radius)[0]
+            if np.min(gap) < 3.0 * radius:
+                return True
+    return False
 
 
 def _assign_points(ratings: _Ratings, chosen: list[int]) -> list[MotionLayer]:

@@ -7,7 +7,9 @@ Steps (both clouds in one frame):
    carried back to every point (per segment with masks, per voxel without).
 1. Segments: mask segments when the scene has masks; otherwise one motion-based split (points of
    one state farther than a radius from the other state's cloud are "moving", clustered into
-   connected pieces; the rest is static).
+   connected pieces; the rest is static). With the other state's depth views, a far point whose
+   place those views could not see (something nearer covers it) is unseen, not moved: it has no
+   vote and only joins a part whose motion carries it onto moved points (:mod:`.motion_layers`).
 2. Within a state, segments from different images that cover the same surface are merged (mask ids
    need not agree across images).
 3. Across states, start and end groups are paired as one assignment problem
@@ -40,7 +42,7 @@ from scipy.spatial.transform import Rotation
 from sparseart.geometry.clouds import median_spacing
 from sparseart.geometry.sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
-from .consistency import CONSISTENT, VIOLATION, StateViews, state_views
+from .consistency import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
 from .correspondence import (AMBIGUITY_MARGIN, Group, PairContext, apply, assign, mask_agreement,
                              motion_size, pair_score, prefer_small_turns, score_pairs)
 
@@ -55,6 +57,7 @@ POSE_ERROR_DEG = 5.0            # posed, no static pair: a largest pair moving l
 POSE_ERROR_DIAMETERS = 0.05
 POLISH_POINTS = 1000            # points per state in a part's final registration (work clouds)
 FULL_POLISH_POINTS = 2000       # points per state in the refinement on the full clouds
+UNSEEN = -2                     # motion split: far from the other state but hidden in its views (no vote)
 VIOLATION_WARN_SHARE = 0.3      # a part whose predicted end points the end views contradict this much
 
 _Group = Group  # the group type (kept under its old name for callers)
@@ -125,7 +128,8 @@ class RuleBasedLabeler:
         if has_masks:
             start_segments, end_segments = work_start.segment, work_end.segment
         else:
-            start_segments, end_segments = _motion_split(work_start, work_end, config, spacing, start, end, rng)
+            start_segments, end_segments = _motion_split(work_start, work_end, config, spacing, start, end, rng,
+                                                         scene if aligned else None)
             warnings.append("no masks: parts come from a motion-based split (points that moved)")
             config = replace(config, min_segment_share=max(config.min_segment_share,
                                                            config.motion_piece_min_share))
@@ -149,8 +153,11 @@ class RuleBasedLabeler:
         if not has_masks:
             layers = _layers_without_masks(work_start, work_end, start_segments, end_segments, candidates,
                                            assignment.pairs, radius, config, warnings, context)
-            if len(layers) < 2:
-                layers = None    # one motion: the pieces' own pairing labels more of the points
+            unseen = bool(np.any(start_segments == UNSEEN) or np.any(end_segments == UNSEEN))
+            if len(layers) < 2 and not (layers and unseen):
+                # One motion: the pieces' own pairing labels more of the points -- unless some
+                # moved points were unseen (no piece holds them; only a motion can claim them).
+                layers = None
         labels = _assign_parts(work_start, work_end, start_segments, end_segments, start_groups, end_groups, pairs,
                                extras, radius, config, warnings, motion_split=not has_masks,
                                identity_scores={k: c.identity for k, c in candidates.items()},
@@ -209,24 +216,38 @@ def _downsample(cloud: LabelledCloud, voxel: float) -> tuple[LabelledCloud, np.n
 
 def _motion_split(start: LabelledCloud, end: LabelledCloud, config: RuleLabelerConfig, spacing: float,
                   full_start: LabelledCloud, full_end: LabelledCloud,
-                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Pseudo-segments without masks: 0 = stayed put, 1..k = connected pieces of moved points.
+                  rng: np.random.Generator, scene: Scene | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Pseudo-segments without masks: 0 = stayed put, 1..k = connected pieces of moved points,
+    ``UNSEEN`` = no vote (see below).
 
-    A work point moved when it is farther than ``motion_radius_spacings`` x the FULL clouds'
+    A work point is "far" when it is farther than ``motion_radius_spacings`` x the FULL clouds'
     spacing from every point of the other state's full cloud (the work clouds' coarser spacing
-    would hide small motions: a toaster's lever pressed a few millimetres); pieces link moved
-    work points within 3 work spacings. O(N log N)."""
+    would hide small motions: a toaster's lever pressed a few millimetres). Far is not yet moved:
+    with the other state's depth views (``scene``, states in one frame), a far point that those
+    views could not see -- something nearer covers its place (the base under a lid that closed
+    over it, the table under an arm) -- has no evidence of moving and gets ``UNSEEN``; only a far
+    point whose place the other state's views saw through (or saw a surface at) is moved. Unseen
+    points are neither static nor moved: the motion layers may still claim them when a part's
+    motion carries them onto moved points that were seen (a lid whose own end pose hides its start
+    pose), otherwise they stay unassigned. Pieces link moved work points within 3 work spacings.
+    O(N log N) plus O(N V) for V views."""
     full_spacing = max(median_spacing(full_start.points, sample=4000, rng=rng),
                        median_spacing(full_end.points, sample=4000, rng=rng))
     radius = config.motion_radius_spacings * full_spacing
+    views = ((state_views(end, scene, radius), state_views(start, scene, radius)) if scene is not None
+             else (StateViews([], radius), StateViews([], radius)))
     result = []
-    for cloud, other in ((start, full_end), (end, full_start)):
+    for cloud, other, other_views in ((start, full_end, views[0]), (end, full_start, views[1])):
         distance, _ = cKDTree(other.points).query(cloud.points, k=1, distance_upper_bound=radius)
         segments = np.zeros(len(cloud), dtype=np.int64)
-        moved = np.flatnonzero(distance > radius)
-        if len(moved):
-            labels = _connected_pieces(cloud.points[moved], 3.0 * spacing)
-            segments[moved] = labels + 1
+        far = np.flatnonzero(distance > radius)
+        if other_views and len(far):
+            unseen = other_views.classify(cloud.points[far]) == HIDDEN
+            segments[far[unseen]] = UNSEEN
+            far = far[~unseen]
+        if len(far):
+            labels = _connected_pieces(cloud.points[far], 3.0 * spacing)
+            segments[far] = labels + 1
         result.append(segments)
     return result[0], result[1]
 
@@ -364,8 +385,8 @@ def _layers_without_masks(start: LabelledCloud, end: LabelledCloud, start_segmen
     assigned pairs that moved (:mod:`.motion_layers`)."""
     from .motion_layers import motion_layers
 
-    start_moved = np.flatnonzero(start_segments > 0)
-    end_moved = np.flatnonzero(end_segments > 0)
+    start_moved = np.flatnonzero((start_segments > 0) | (start_segments == UNSEEN))
+    end_moved = np.flatnonzero((end_segments > 0) | (end_segments == UNSEEN))
     moving = [p for p in chosen if not _is_static(candidates[p].transform, p[0], start, context.start_groups, radius)]
     others = sorted((c for key, c in candidates.items() if key not in moving and c.how != "identity"
                      and c.score >= config.match_min_score), key=lambda c: (-c.score, c.i, c.j))
@@ -373,7 +394,8 @@ def _layers_without_masks(start: LabelledCloud, end: LabelledCloud, start_segmen
     min_points = int(max(config.min_segment_points, config.min_segment_share * (len(start) + len(end)) / 2))
     pieces = ([g.indices for g in context.start_groups if start_segments[g.indices[0]] > 0],
               [g.indices for g in context.end_groups if end_segments[g.indices[0]] > 0])
-    layers, notes = motion_layers(context, start_moved, end_moved, motions, min_points, pieces)
+    unseen = (start_segments[start_moved] == UNSEEN, end_segments[end_moved] == UNSEEN)
+    layers, notes = motion_layers(context, start_moved, end_moved, motions, min_points, pieces, unseen)
     warnings.extend(notes)
     return layers
 
