@@ -57,6 +57,8 @@ POSE_ERROR_DEG = 5.0            # posed, no static pair: a largest pair moving l
 POSE_ERROR_DIAMETERS = 0.05
 POLISH_POINTS = 1000            # points per state in a part's final registration (work clouds)
 FULL_POLISH_POINTS = 2000       # points per state in the refinement on the full clouds
+REFINE_SHARE_SLACK = 0.01       # ... and kept unless it fits the part worse by more than this share
+FULL_POLISH_MIN_POINTS = 500    # parts with fewer points per state keep their work-cloud motion
 UNSEEN = -2                     # motion split: far from the other state but hidden in its views (no vote)
 VIOLATION_WARN_SHARE = 0.3      # a part whose predicted end points the end views contradict this much
 
@@ -206,8 +208,16 @@ def _downsample(cloud: LabelledCloud, voxel: float) -> tuple[LabelledCloud, np.n
     if voxel <= 0 or len(cloud) == 0:
         return cloud, np.arange(len(cloud))
     keys = np.floor((cloud.points - cloud.points.min(axis=0)) / voxel).astype(np.int64)
-    table = np.concatenate([keys, cloud.segment[:, None]], axis=1)
-    _, first, inverse = np.unique(table, axis=0, return_index=True, return_inverse=True)
+    table = np.concatenate([keys, cloud.segment[:, None] - cloud.segment.min()], axis=1)
+    sizes = table.max(axis=0) + 1
+    if float(np.prod(sizes.astype(np.float64))) < 2.0 ** 62:
+        # One int64 per (voxel, segment): a 1-D unique is much faster than rows (same groups).
+        code = np.zeros(len(table), dtype=np.int64)
+        for column, size in zip(table.T, sizes):
+            code = code * size + column
+        _, first, inverse = np.unique(code, return_index=True, return_inverse=True)
+    else:
+        _, first, inverse = np.unique(table, axis=0, return_index=True, return_inverse=True)
     order = np.argsort(first)
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
@@ -709,14 +719,16 @@ def _to_full(labels: PartLabels, start: LabelledCloud, end: LabelledCloud, start
 def _refine_on_full(labels: PartLabels, start: LabelledCloud, end: LabelledCloud,
                     config: RuleLabelerConfig) -> None:
     """Every movable part's motion (and its alternatives) refined on the part's points of the FULL
-    clouds (ICP from the work-cloud motion, with colour, up to ``FULL_POLISH_POINTS`` per state).
+    clouds (ICP from the labeler's motion, with colour, up to ``FULL_POLISH_POINTS`` per state).
 
-    The work clouds keep one point per voxel at a grid position, so a part sampled in two states
-    moved relative to the grid is sampled differently: a registration on them is biased by up to a
-    voxel (measured: a dishwasher rack 0.4 deg and 5 mm off). The joint fit starts from this seed,
-    so it is refined where the sampling is the sensor's own. A refinement that turns the motion by
-    more than ``DISTINCT_MOTION_DEG`` left its basin and is not taken; results are rounded to 1e-10
-    (reproducible despite open3d's threaded sums). O(P log P) per part."""
+    The pair search and the part's final registration work on the voxel work clouds with at most
+    ``POLISH_POINTS`` per state; the joint fit starts from this motion and is sensitive to it
+    (measured: a dishwasher rack's seed 0.4 deg and 5 mm off gave a 1.3 deg axis, the refined one
+    0.19 deg). The refinement is kept only when it stays in its basin (turns the motion by at most
+    ``DISTINCT_MOTION_DEG``) and does not fit the part's points worse (:func:`_fit_share` drops by
+    at most ``REFINE_SHARE_SLACK``); parts with fewer than ``FULL_POLISH_MIN_POINTS`` points in a
+    state keep their motion (ICP on a few hundred points of a thin rack drifts along it). Results
+    are rounded to 1e-10 (reproducible despite open3d's threaded sums). O(P log P) per part."""
     from sparseart.geometry.icp import register_rigid
     from sparseart.geometry.transforms import rotation_angle
 
@@ -727,14 +739,17 @@ def _refine_on_full(labels: PartLabels, start: LabelledCloud, end: LabelledCloud
         except ValueError:
             return transform
         turn = np.degrees(rotation_angle(result[:3, :3] @ transform[:3, :3].T))
-        return result if np.all(np.isfinite(result)) and turn <= DISTINCT_MOTION_DEG else transform
+        if not (np.all(np.isfinite(result)) and turn <= DISTINCT_MOTION_DEG):
+            return transform
+        before, after = _fit_share(transform, source, target), _fit_share(result, source, target)
+        return result if after >= before - REFINE_SHARE_SLACK else transform
 
     for spec in labels.parts:
         if spec.role != "movable" or spec.id not in labels.initial_motion:
             continue
         s_rows = np.flatnonzero(labels.start_part == spec.id)
         e_rows = np.flatnonzero(labels.end_part == spec.id)
-        if len(s_rows) < 10 or len(e_rows) < 10:
+        if min(len(s_rows), len(e_rows)) < FULL_POLISH_MIN_POINTS:
             continue
         source, target = start.points[s_rows], end.points[e_rows]
         colours = dict(source_colors=start.colors[s_rows], target_colors=end.colors[e_rows])
@@ -746,6 +761,20 @@ def _refine_on_full(labels: PartLabels, start: LabelledCloud, end: LabelledCloud
     # below any registration's accuracy) so the labels stay reproducible.
     labels.initial_motion = {k: np.round(v, 10) for k, v in labels.initial_motion.items()}
     labels.alternative_motions = {k: [np.round(m, 10) for m in v] for k, v in labels.alternative_motions.items()}
+
+
+def _fit_share(transform: np.ndarray, source: np.ndarray, target: np.ndarray) -> float:
+    """How well a motion lays a part's start points onto its end points: the symmetric share
+    within 1.5 x the part's own median spacing (tight: a grid bias of a fraction of a voxel shows).
+    O((N + M) log(N + M))."""
+    rng = np.random.default_rng(0)
+    source = source[random_subset(len(source), 4000, rng)]
+    target = target[random_subset(len(target), 4000, rng)]
+    distance = 1.5 * max(median_spacing(source, sample=2000, rng=rng), median_spacing(target, sample=2000, rng=rng))
+    moved = apply(transform, source)
+    forward = cKDTree(target).query(moved, k=1, distance_upper_bound=distance)[0] < distance
+    backward = cKDTree(moved).query(target, k=1, distance_upper_bound=distance)[0] < distance
+    return float((forward.sum() + backward.sum()) / (len(forward) + len(backward)))
 
 
 def _object_consistency(labels: PartLabels, work_start: LabelledCloud, work_end: LabelledCloud,
