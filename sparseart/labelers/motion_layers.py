@@ -91,6 +91,7 @@ class MotionLayer:
     physics: float
     start: np.ndarray
     end: np.ndarray
+    charge: float = 0.0     # the objective's physics charge per claimed point (blocked share, slide sine)
 
 
 class _Ratings:
@@ -363,8 +364,9 @@ def _merge_agreeing(ratings: _Ratings, layers: list[MotionLayer]) -> list[Motion
     apart), so one part whose registration is a little off in different places can come out as
     several nearly equal motions, each claiming a patch. A layer whose points the motion of a
     larger layer, which it touches, carries onto the other state within the full inlier radius
-    (share >= ``MERGE_HIT_SHARE``) joins it; the merged layer keeps the larger one's motion
-    (the part's final registration refines it on all of its points). O(L^2 P log N)."""
+    (share >= ``MERGE_HIT_SHARE``) joins it; the merged layer keeps the motion of the two that
+    lays all of its points best (tight hit radius) net of its physics charge, as in the objective
+    (the part's final registration refines it). O(L^2 P log N)."""
     layers = sorted(layers, key=lambda layer: -(len(layer.start) + len(layer.end)))
     radius = ratings.context.radius
     merged = True
@@ -376,8 +378,11 @@ def _merge_agreeing(ratings: _Ratings, layers: list[MotionLayer]) -> list[Motion
                 if not _touching(ratings, big, small, radius):
                     continue
                 if _hit_share(ratings, big.transform, small.start, small.end, radius) >= MERGE_HIT_SHARE:
-                    layers[a] = MotionLayer(big.transform, big.physics, np.union1d(big.start, small.start),
-                                            np.union1d(big.end, small.end))
+                    start_idx, end_idx = np.union1d(big.start, small.start), np.union1d(big.end, small.end)
+                    # The merged layer follows whichever motion lays all of its points best.
+                    keep = max((big, small), key=lambda layer: _hit_share(ratings, layer.transform, start_idx,
+                                                                          end_idx, ratings.radius) - layer.charge)
+                    layers[a] = MotionLayer(keep.transform, keep.physics, start_idx, end_idx, keep.charge)
                     del layers[b]
                     merged = True
                     break
@@ -431,5 +436,6 @@ def _assign_points(ratings: _Ratings, chosen: list[int]) -> list[MotionLayer]:
     for slot, k in enumerate(chosen):
         start_idx = ratings.start_moved[owner[:n_start] == slot]
         end_idx = ratings.end_moved[owner[n_start:] == slot]
-        layers.append(MotionLayer(ratings.motions[k], ratings.physics[k], start_idx, end_idx))
+        layers.append(MotionLayer(ratings.motions[k], ratings.physics[k], start_idx, end_idx,
+                                  PHYSICS_WEIGHT * ratings.physics[k] + SLIDE_WEIGHT * ratings.slides[k]))
     return layers
