@@ -163,7 +163,7 @@ class RuleBasedLabeler:
         labels = _assign_parts(work_start, work_end, start_segments, end_segments, start_groups, end_groups, pairs,
                                extras, radius, config, warnings, motion_split=not has_masks,
                                identity_scores={k: c.identity for k, c in candidates.items()},
-                               posed=posed, diameter=diameter, layers=layers, views=views)
+                               posed=posed, diameter=diameter, layers=layers, views=views, aligned=aligned)
         part_of_pair = _part_of_pairs(labels, pairs, start_groups)
         diagnostics = _pairing_diagnostics(assignment, candidates, part_of_pair, warnings, voxel)
         labels = _to_full(labels, start, end, start_map, end_map, has_masks)
@@ -376,16 +376,27 @@ def _extras(context: PairContext, candidates: dict, chosen: list[tuple[int, int]
 
 
 def _fallback_base(moving_pairs: list[tuple[int, int, np.ndarray, float]], start_groups: list[Group],
-                   identity_scores: dict[tuple[int, int], float]) -> tuple[int, int, np.ndarray, float]:
+                   identity_scores: dict[tuple[int, int], float],
+                   aligned_start: LabelledCloud | None = None) -> tuple[int, int, np.ndarray, float]:
     """The static base when no pair passed the static test: the pair that staying put explains
     best relative to its own motion (identity score / pair score >= ``STILL_EXPLAINS_SHARE``; the
-    largest such one), else the largest pair (design: the largest consistent set)."""
+    largest such one), else the largest pair (design: the largest consistent set) -- or, when the
+    states were already aligned on a static part without a known world frame (``aligned_start``
+    given: the second labelling of an unposed scene), the pair that moved least (median travel of
+    its points): the alignment brought the base near identity even when a flat base slid along
+    itself, while the largest group may be the part that turned."""
     def share(pair) -> float:
         return identity_scores.get((pair[0], pair[1]), 0.0) / max(pair[3], 1e-12)
 
     still = [p for p in moving_pairs if share(p) >= STILL_EXPLAINS_SHARE]
-    candidates = still or moving_pairs
-    return max(candidates, key=lambda p: len(start_groups[p[0]].indices))
+    if still or aligned_start is None:
+        return max(still or moving_pairs, key=lambda p: len(start_groups[p[0]].indices))
+
+    def travel(pair) -> float:
+        points = aligned_start.points[start_groups[pair[0]].indices]
+        return float(np.median(np.linalg.norm(apply(pair[2], points) - points, axis=1)))
+
+    return min(moving_pairs, key=travel)
 
 
 def _layers_without_masks(start: LabelledCloud, end: LabelledCloud, start_segments: np.ndarray,
@@ -416,7 +427,7 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
                   radius: float, config: RuleLabelerConfig, warnings: list[str],
                   motion_split: bool, identity_scores: dict[tuple[int, int], float] | None = None,
                   posed: bool = False, diameter: float = 1.0, layers=None,
-                  views: tuple[StateViews, StateViews] | None = None) -> PartLabels:
+                  views: tuple[StateViews, StateViews] | None = None, aligned: bool = False) -> PartLabels:
     """Static pairs -> part 0; moving pairs merged by shared motion -> parts 1..k (or, without
     masks, one part per motion layer)."""
     rng = np.random.default_rng(config.seed + 2)
@@ -424,7 +435,8 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
     for pair in pairs:
         (static_pairs if _is_static(pair[2], pair[0], start, start_groups, radius) else moving_pairs).append(pair)
     if not static_pairs and moving_pairs:
-        base = _fallback_base(moving_pairs, start_groups, identity_scores or {})
+        least = aligned and not posed
+        base = _fallback_base(moving_pairs, start_groups, identity_scores or {}, start if least else None)
         angle, shift = motion_size(base[2])
         if (identity_scores or {}).get((base[0], base[1]), 0.0) >= STILL_EXPLAINS_SHARE * base[3]:
             # Noisy depth lowers every overlap; a pair that staying put explains nearly as well as
@@ -440,8 +452,8 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
         else:
             moving_pairs.remove(base)
             static_pairs.append(base)
-            warnings.append("no segment stayed put between the states; the largest one is taken as the "
-                            "static base (are the two states in one frame?)")
+            warnings.append("no segment stayed put between the states; the " + ("one that moved least" if least else
+                            "largest one") + " is taken as the static base (are the two states in one frame?)")
     start_map: dict[int, int] = {}
     end_map: dict[int, int] = {}
     for i, j, _, _ in static_pairs:
