@@ -31,11 +31,6 @@ def laptop():
 
 
 @requires_real
-@pytest.mark.xfail(reason="known open (issue 13): without masks the motion split calls points hidden in the "
-                          "other state (the base under the closed lid, table under the arm) 'moved', so the lid's "
-                          "part is polluted and the hinge lands ~2 cm off at a 173 deg turn; a visibility-aware "
-                          "split fixes it in a prototype (0.2 deg, 0.2 cm, 95.9 deg) but is not merged yet",
-                   raises=AssertionError, strict=False)
 def test_real_laptop_lid_hinge_and_turn(laptop) -> None:
     from sparseart.bench.metrics import axis_angle_error_deg, point_to_line_distance
 

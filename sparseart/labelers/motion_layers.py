@@ -1,0 +1,441 @@
+"""Moving points without masks: which rigid motion carries each moved point.
+
+Without masks the moved points of a state come in connected pieces, and one piece can hold
+several parts (twin drawers side by side are one piece). So parts are found as motions, not as
+pieces. The motions start from the assignment of pieces (:mod:`.correspondence`, with its
+physics-aware cost); every motion then rates every moved point of both states:
+
+* 1 when the motion carries it onto a moved point of the other state (a hit),
+* ``HIDDEN_CREDIT`` (just below 1: a hit wins a tie) when it lands where the other state's views
+  cannot see (a drawer pushed shut hides its sides in the carcass),
+* 0 when it lands on some other surface the views saw, -1 when the views saw through that spot.
+
+Moved points the split marked unseen (far from the other state's cloud, but hidden in its views:
+the base under a lid that closed over it) have no vote: they add nothing to the selection objective,
+earn nothing from landing hidden or on each other, and only join a chosen motion that carries them
+onto the other state's moved points. A turning slab (lid, door) also gets its mirrored twins as
+candidates (the motion composed with the slab's half-turns, which registration cannot tell apart);
+the objective's physics charge decides. Chosen motions whose layers touch and agree (the larger
+one's motion carries the smaller one's points within the full inlier radius) are merged.
+
+Moved points that no motion explains (rated <= 0 by all: e.g. a twin drawer's front that the
+other drawer's motion puts in free space) form residual pieces; each is registered onto the other
+state's unexplained moved points and its motion joins when it hits at least a part's worth of
+points in both states and a joint anchored on the static body could make it (few blocked steps,
+a slide out of its slot). Each point then follows the motion rating it best; ties and
+hidden-only points go to the motion whose hits lie nearest. Cost O(M N (log N + V)) for M
+motions and N moved points, plus one registration per residual piece.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..types import LabelledCloud
+from .consistency import HIDDEN, VIOLATION, StateViews
+from .correspondence import (MIN_STEP_RADII, PHYSICS_WEIGHT, SLIDE_WEIGHT, STEP_FRACTIONS, PairContext, _Screw, apply,
+                             motion_size, refine_icp, register_sets, slide_sine_points)
+
+HIDDEN_CREDIT = 0.5
+TIGHTEN_POINTS = 600
+PHYSICS_SAMPLE = 400
+SAME_MOTION_RADII = 1.0     # motions moving the points within this many radii of each other are one
+RESIDUAL_ROUNDS = 2
+PIECE_SHARE = 0.03          # moved pieces at least this share of the moved points are registered on their own
+LAYER_MIN_SHARE = 0.1       # a layer must hold this share of each state's moved points
+PRICE_SHARE = 0.03          # a motion (part) must explain more than this share of the moved points
+MAX_TURN_DEG = 150.0        # candidate motions turning more are left out (real joints rarely do)
+MERGE_HIT_SHARE = 0.6      # a touching layer the larger one's motion explains this much joins it
+MIRROR_MIN_TURN_DEG = 10.0  # turning motions of slabs get their mirrored twins as candidates
+SLAB_THICKNESS_SHARE = 0.3  # a slab: third principal extent below this share of the second
+HIT_RADIUS_SHARE = 0.5      # a hit lands within this share of the inlier radius (a motion blending
+                            # two twins' slides a radius apart misses both)
+
+
+def _slab_mirrors(ratings: "_Ratings", k: int) -> list[np.ndarray]:
+    """A turning motion composed with the half-turns that map its part onto itself when the part
+    is a slab (a lid, a door: two principal extents well above the thickness): T S_a for the
+    half-turn S_a about each in-plane principal axis through the part's centroid. Registration
+    cannot tell these apart on a symmetric slab (a lid closed by 96 deg and the lid flipped onto
+    itself by 84 deg land on the same plane); the whole-object objective (hits, and physics: a
+    hinge's sweep must not pass through seen surfaces) decides."""
+    transform = ratings.motions[k]
+    if motion_size(transform)[0] < MIRROR_MIN_TURN_DEG:
+        return []
+    row = ratings.rows[k]
+    own = ratings.start_moved[row[:len(ratings.start_moved)] >= 1.0]
+    if len(own) < 30:
+        return []
+    points = ratings.start.points[own]
+    centre = points.mean(axis=0)
+    _, singular, axes = np.linalg.svd(points - centre, full_matrices=False)
+    if singular[2] > SLAB_THICKNESS_SHARE * singular[1]:
+        return []
+    result = []
+    for axis in axes[:2]:
+        half = np.eye(4)
+        half[:3, :3] = 2.0 * np.outer(axis, axis) - np.eye(3)
+        half[:3, 3] = centre - half[:3, :3] @ centre
+        result.append(transform @ half)
+    return result
+
+
+@dataclass
+class MotionLayer:
+    """One kept motion: (4, 4) start->end transform, its physics share, and the work-cloud
+    indices of the start / end points that follow it."""
+
+    transform: np.ndarray
+    physics: float
+    start: np.ndarray
+    end: np.ndarray
+    charge: float = 0.0     # the objective's physics charge per claimed point (blocked share, slide sine)
+
+
+class _Ratings:
+    """Ratings of the moved points of both states under the motions."""
+
+    def __init__(self, context: PairContext, start_moved: np.ndarray, end_moved: np.ndarray,
+                 unseen: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        self.context = context
+        self.start, self.end = context.start, context.end
+        self.start_moved, self.end_moved = start_moved, end_moved
+        if unseen is None:
+            unseen = (np.zeros(len(start_moved), dtype=bool), np.zeros(len(end_moved), dtype=bool))
+        self.start_unseen, self.end_unseen = (np.asarray(u, dtype=bool) for u in unseen)
+        self.unseen = np.concatenate([self.start_unseen, self.end_unseen])
+        self.radius = HIT_RADIUS_SHARE * context.radius
+        self.start_tree = cKDTree(self.start.points[start_moved])
+        self.end_tree = cKDTree(self.end.points[end_moved])
+        self.start_all = cKDTree(self.start.points)
+        self.end_all = cKDTree(self.end.points)
+        self.motions: list[np.ndarray] = []
+        self.rows: list[np.ndarray] = []      # (N_s + N_e,) ratings per motion
+        self.physics: list[float] = []
+        self.slides: list[float] = []
+
+    def _rate(self, points: np.ndarray, tree: cKDTree, views: StateViews, own_unseen: np.ndarray,
+              target_unseen: np.ndarray) -> np.ndarray:
+        distance, index = tree.query(points, k=1, distance_upper_bound=self.radius)
+        hits = distance < self.radius
+        # Unseen points (hidden in the other state, no vote in the split) earn nothing from each
+        # other: two occluded table patches match under any slide along the table.
+        hits[hits] &= ~(own_unseen[hits] & target_unseen[index[hits]])
+        rating = hits.astype(np.float64)
+        if views:
+            labels = views.classify(points[~hits])
+            rating[~hits] = np.where(labels == HIDDEN, HIDDEN_CREDIT, np.where(labels == VIOLATION, -1.0, 0.0))
+        # An unseen point carried to where the other state cannot see either: no evidence at all.
+        rating[own_unseen & (rating == HIDDEN_CREDIT)] = 0.0
+        return rating
+
+    def rate(self, transform: np.ndarray) -> np.ndarray:
+        forward = self._rate(apply(transform, self.start.points[self.start_moved]), self.end_tree,
+                             self.context.end_views, self.start_unseen, self.end_unseen)
+        backward = self._rate(apply(np.linalg.inv(transform), self.end.points[self.end_moved]), self.start_tree,
+                              self.context.start_views, self.end_unseen, self.start_unseen)
+        return np.concatenate([forward, backward])
+
+    def tighten(self, transform: np.ndarray) -> np.ndarray:
+        """Refine a motion on the moved points it carries onto each other, with a tight trimming
+        radius (a motion blending two twins' slides settles on the better supported one)."""
+        row = self.rate(transform)
+        n_start = len(self.start_moved)
+        own_s = self.start_moved[row[:n_start] >= 1.0]
+        own_e = self.end_moved[row[n_start:] >= 1.0]
+        if len(own_s) < 10 or len(own_e) < 10:
+            return transform
+        own_s = own_s[:: max(1, len(own_s) // TIGHTEN_POINTS)]
+        own_e = own_e[:: max(1, len(own_e) // TIGHTEN_POINTS)]
+        return refine_icp(self.start.points[own_s], self.end.points[own_e], transform, self.radius,
+                          schedule=(1.0, 0.5), iterations=6)
+
+    def known(self, transform: np.ndarray) -> bool:
+        """Is an equal motion (points moved within ``SAME_MOTION_RADII`` radii) already rated?"""
+        probe = self.start.points[self.start_moved[:: max(1, len(self.start_moved) // 500)]]
+        for other in self.motions:
+            gap = np.linalg.norm(apply(transform, probe) - apply(other, probe), axis=1)
+            if len(gap) and np.median(gap) < SAME_MOTION_RADII * self.radius:
+                return True
+        return False
+
+    def add(self, transform: np.ndarray, row: np.ndarray | None = None) -> None:
+        row = self.rate(transform) if row is None else row
+        n_start = len(self.start_moved)
+        own_s = self.start_moved[row[:n_start] >= 1.0]
+        own_e = self.end_moved[row[n_start:] >= 1.0]
+        self.motions.append(transform)
+        self.rows.append(row)
+        self.physics.append(self.blocked(transform, own_s, own_e, self.start_moved[row[:n_start] > 0],
+                                         self.end_moved[row[n_start:] > 0]))
+        self.slides.append(slide_sine_points(self.context, transform, self.start.points[own_s],
+                                             self.end.points[own_e]) if len(own_s) and len(own_e) else 0.0)
+
+    def blocked(self, transform: np.ndarray, own_start: np.ndarray, own_end: np.ndarray, part_start: np.ndarray,
+                part_end: np.ndarray) -> float:
+        """Blocked-step share (:func:`~.correspondence.blocked_share`) of the motion's hit points
+        (own_*) in both states; the part's points (part_*: hit or hidden, they move along) are
+        told apart from obstacles by checking the 8 nearest neighbours of a stepped point."""
+        shares = []
+        for cloud, tree, owned, part, direction in ((self.start, self.start_all, own_start, part_start, 1.0),
+                                                    (self.end, self.end_all, own_end, part_end, -1.0)):
+            if len(owned) < 10:
+                shares.append(0.0)
+                continue
+            mask = np.zeros(len(cloud), dtype=bool)
+            mask[part] = True
+            mask[owned] = True
+            points = cloud.points[owned[:: max(1, len(owned) // PHYSICS_SAMPLE)]]
+            screw = _Screw(transform, direction)
+            whole = apply(screw.at(1.0), points)
+            travel = float(np.median(np.linalg.norm(whole - points, axis=1)))
+            if travel < 2.0 * MIN_STEP_RADII * self.radius:
+                shares.append(0.0)
+                continue
+
+            def near_other(p: np.ndarray) -> np.ndarray:
+                distance, index = tree.query(p, k=8, distance_upper_bound=self.radius)
+                found = distance < self.radius
+                index = np.where(found, index, 0)
+                return np.any(found & ~mask[index], axis=1)
+
+            touching = near_other(points)
+            least = MIN_STEP_RADII * self.radius / travel
+            worst = 0.0
+            for fraction in STEP_FRACTIONS:
+                step = min(max(fraction, least), 0.5)
+                stepped = apply(screw.at(step), points)
+                worst = max(worst, float(np.mean(near_other(stepped) & ~touching)))
+            shares.append(worst)
+        return float(np.mean(shares))
+
+
+def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.ndarray,
+                  motions: list[np.ndarray], min_points: int,
+                  pieces: tuple[list[np.ndarray], list[np.ndarray]] = ([], []),
+                  unseen: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[list[MotionLayer], list[str]]:
+    """Split the moved points of both states into rigid motions (module doc).
+
+    context: the pair context of the two states (work clouds, radius, views, static frame);
+    start_moved / end_moved: work-cloud indices of the moved points; motions: candidate (4, 4)
+    start->end motions (the assigned moving pieces' first); pieces: the moved pieces of each
+    state (work indices), each also registered onto all moved points of the other state.
+    Returns the layers (largest first) and notes for the warnings.
+    """
+    notes: list[str] = []
+    if len(start_moved) == 0 or len(end_moved) == 0:
+        return [], notes
+    ratings = _Ratings(context, start_moved, end_moved, unseen)
+    rng = np.random.default_rng(context.seed + 7)
+    pool = list(motions)
+    big = max(min_points, int(PIECE_SHARE * (len(start_moved) + len(end_moved)) / 2))
+    for piece in pieces[0]:
+        if len(piece) >= big:
+            pool.append(register_sets(context, piece, end_moved, rng)[1])
+    for piece in pieces[1]:
+        if len(piece) >= big:
+            pool.append(register_sets(context, start_moved, piece, rng)[1])
+    for transform in pool:
+        if transform is None or motion_size(transform)[0] > MAX_TURN_DEG:
+            continue
+        transform = ratings.tighten(transform)
+        if not ratings.known(transform):
+            ratings.add(transform)
+    for k in range(len(ratings.motions)):
+        for mirrored in _slab_mirrors(ratings, k):
+            mirrored = ratings.tighten(mirrored)
+            if motion_size(mirrored)[0] <= MAX_TURN_DEG and not ratings.known(mirrored):
+                ratings.add(mirrored)
+    price = max(float(min_points), PRICE_SHARE * (len(start_moved) + len(end_moved)))
+    chosen = _select(ratings, price)
+    for _ in range(RESIDUAL_ROUNDS):
+        added = False
+        for piece_s, piece_e in _residual_pieces(ratings, chosen, context.radius, min_points):
+            _, found = register_sets(context, piece_s, piece_e, rng)
+            if found is None or motion_size(found)[0] > MAX_TURN_DEG:
+                continue
+            found = ratings.tighten(found)
+            if ratings.known(found):
+                continue
+            ratings.add(found)
+            added = True
+        if not added:
+            break
+        chosen = _select(ratings, price)
+    layers = _merge_agreeing(ratings, _assign_points(ratings, chosen))
+    floor_s = max(min_points, LAYER_MIN_SHARE * len(start_moved))
+    floor_e = max(min_points, LAYER_MIN_SHARE * len(end_moved))
+    layers = [layer for layer in layers if len(layer.start) >= floor_s and len(layer.end) >= floor_e]
+    layers.sort(key=lambda layer: -(len(layer.start) + len(layer.end)))
+    return layers, notes
+
+
+def _objective(ratings: _Ratings, chosen: list[int], price: float) -> float:
+    """Whole-object explanation of a motion set: the sum over moved points that were seen (unseen
+    points have no vote: they join a chosen motion afterwards) of their best rating (>= 0), minus ``price`` per motion and, per motion, its physics charge (blocked share and
+    slide sine, weighted as in the pair cost) times the points it claims."""
+    if not chosen:
+        return 0.0
+    table = np.stack([ratings.rows[k] for k in chosen])[:, ~ratings.unseen]
+    best = table.max(axis=0)
+    owner = table.argmax(axis=0)
+    value = float(np.clip(best, 0.0, None).sum()) - price * len(chosen)
+    for slot, k in enumerate(chosen):
+        claimed = float(np.sum((owner == slot) & (best > 0.0)))
+        value -= (PHYSICS_WEIGHT * ratings.physics[k] + SLIDE_WEIGHT * ratings.slides[k]) * claimed
+    return value
+
+
+def _select(ratings: _Ratings, price: float) -> list[int]:
+    """Greedy forward selection, then single removals and swaps while the objective improves.
+    Ties go to the earlier motion (the assigned pairs' motions come first)."""
+    chosen: list[int] = []
+    value = 0.0
+    pool = list(range(len(ratings.motions)))
+    while True:
+        best, best_value = None, value
+        for k in pool:
+            if k in chosen:
+                continue
+            trial = _objective(ratings, chosen + [k], price)
+            if trial > best_value + 1e-9:
+                best, best_value = k, trial
+        if best is None:
+            break
+        chosen.append(best)
+        value = best_value
+    improved = True
+    while improved and chosen:
+        improved = False
+        for slot in range(len(chosen)):
+            for k in [None, *[m for m in pool if m not in chosen]]:
+                trial_set = chosen[:slot] + chosen[slot + 1:] + ([k] if k is not None else [])
+                trial = _objective(ratings, trial_set, price)
+                if trial > value + 1e-9:
+                    chosen, value, improved = trial_set, trial, True
+                    break
+            if improved:
+                break
+    return sorted(chosen)
+
+
+def _residual_pieces(ratings: _Ratings, chosen: list[int], radius: float,
+                     min_points: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Connected pieces of moved points no chosen motion explains (rating <= 0), each paired with
+    the other state's unexplained moved points (all of its moved points when too few are left)."""
+    from .rules import _connected_pieces
+
+    n_start = len(ratings.start_moved)
+    best = (np.stack([ratings.rows[k] for k in chosen]).max(axis=0) if chosen
+            else np.zeros(n_start + len(ratings.end_moved)))
+    loose_s = ratings.start_moved[(best[:n_start] <= 0) & ~ratings.start_unseen]
+    loose_e = ratings.end_moved[(best[n_start:] <= 0) & ~ratings.end_unseen]
+    pairs = []
+    for loose, other_loose, cloud, other_all in ((loose_s, loose_e, ratings.start, ratings.end_moved),
+                                                 (loose_e, loose_s, ratings.end, ratings.start_moved)):
+        if len(loose) < min_points:
+            continue
+        labels = _connected_pieces(cloud.points[loose], radius)
+        counts = np.bincount(labels)
+        for label in np.flatnonzero(counts >= min_points):
+            piece = loose[labels == label]
+            partner = other_loose if len(other_loose) >= min_points else other_all
+            pairs.append((piece, partner) if cloud is ratings.start else (partner, piece))
+    return pairs
+
+
+def _hit_share(ratings: _Ratings, transform: np.ndarray, start_idx: np.ndarray, end_idx: np.ndarray,
+               radius: float) -> float:
+    """Share of the given moved points (work indices) that ``transform`` carries within ``radius``
+    of the other state's moved points (both directions). O(P log N)."""
+    if len(start_idx) + len(end_idx) == 0:
+        return 0.0
+    forward = ratings.end_tree.query(apply(transform, ratings.start.points[start_idx]), k=1,
+                                     distance_upper_bound=radius)[0] < radius
+    backward = ratings.start_tree.query(apply(np.linalg.inv(transform), ratings.end.points[end_idx]), k=1,
+                                        distance_upper_bound=radius)[0] < radius
+    return float((forward.sum() + backward.sum()) / (len(start_idx) + len(end_idx)))
+
+
+def _merge_agreeing(ratings: _Ratings, layers: list[MotionLayer]) -> list[MotionLayer]:
+    """Layers of one part: the selection rates hits with a tight radius (twins a radius apart stay
+    apart), so one part whose registration is a little off in different places can come out as
+    several nearly equal motions, each claiming a patch. A layer whose points the motion of a
+    larger layer, which it touches, carries onto the other state within the full inlier radius
+    (share >= ``MERGE_HIT_SHARE``) joins it; the merged layer keeps the motion of the two that
+    lays all of its points best (tight hit radius) net of its physics charge, as in the objective
+    (the part's final registration refines it). O(L^2 P log N)."""
+    layers = sorted(layers, key=lambda layer: -(len(layer.start) + len(layer.end)))
+    radius = ratings.context.radius
+    merged = True
+    while merged:
+        merged = False
+        for a in range(len(layers)):
+            for b in range(a + 1, len(layers)):
+                big, small = layers[a], layers[b]
+                if not _touching(ratings, big, small, radius):
+                    continue
+                if _hit_share(ratings, big.transform, small.start, small.end, radius) >= MERGE_HIT_SHARE:
+                    start_idx, end_idx = np.union1d(big.start, small.start), np.union1d(big.end, small.end)
+                    # The merged layer follows whichever motion lays all of its points best.
+                    keep = max((big, small), key=lambda layer: _hit_share(ratings, layer.transform, start_idx,
+                                                                          end_idx, ratings.radius) - layer.charge)
+                    layers[a] = MotionLayer(keep.transform, keep.physics, start_idx, end_idx, keep.charge)
+                    del layers[b]
+                    merged = True
+                    break
+            if merged:
+                break
+    return layers
+
+
+def _touching(ratings: _Ratings, a: MotionLayer, b: MotionLayer, radius: float) -> bool:
+    """Do two layers touch (within ``ADJACENT_RADII`` radii) in either state?"""
+    for cloud, ia, ib in ((ratings.start, a.start, b.start), (ratings.end, a.end, b.end)):
+        if len(ia) and len(ib):
+            probe = ib[:: max(1, len(ib) // 500)]
+            gap = cKDTree(cloud.points[ia]).query(cloud.points[probe], k=1, distance_upper_bound=3.0 * radius)[0]
+            if np.min(gap) < 3.0 * radius:
+                return True
+    return False
+
+
+def _assign_points(ratings: _Ratings, chosen: list[int]) -> list[MotionLayer]:
+    """Every moved point follows the motion rating it best (hits first); ties and hidden-only
+    points go to the motion whose hits lie nearest. Points rated <= 0 by every motion stay
+    unassigned."""
+    if not chosen:
+        return []
+    n_start = len(ratings.start_moved)
+    table = np.stack([ratings.rows[k] for k in chosen])
+    best = table.max(axis=0)
+    points = np.concatenate([ratings.start.points[ratings.start_moved], ratings.end.points[ratings.end_moved]])
+    state = np.concatenate([np.zeros(n_start, dtype=bool), np.ones(len(ratings.end_moved), dtype=bool)])
+    owner = np.full(len(best), -1, dtype=np.int64)
+    top = table >= best[None, :] - 1e-12
+    unique_hit = (best >= 1.0) & (top.sum(axis=0) == 1)
+    owner[unique_hit] = table[:, unique_hit].argmax(axis=0)
+    pending = np.flatnonzero((best > 0) & (owner < 0))
+    if len(pending):
+        distance = np.full((len(chosen), len(pending)), np.inf)
+        for slot in range(len(chosen)):
+            for flag in (False, True):
+                anchors = np.flatnonzero((owner == slot) & (state == flag))
+                here = pending[state[pending] == flag]
+                if len(anchors) == 0 or len(here) == 0:
+                    continue
+                d = cKDTree(points[anchors]).query(points[here], k=1)[0]
+                distance[slot, np.searchsorted(pending, here)] = d
+        distance[~top[:, pending]] = np.inf
+        nearest = distance.argmin(axis=0)
+        reachable = np.isfinite(distance.min(axis=0))
+        owner[pending[reachable]] = nearest[reachable]
+    layers = []
+    for slot, k in enumerate(chosen):
+        start_idx = ratings.start_moved[owner[:n_start] == slot]
+        end_idx = ratings.end_moved[owner[n_start:] == slot]
+        layers.append(MotionLayer(ratings.motions[k], ratings.physics[k], start_idx, end_idx,
+                                  PHYSICS_WEIGHT * ratings.physics[k] + SLIDE_WEIGHT * ratings.slides[k]))
+    return layers

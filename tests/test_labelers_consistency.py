@@ -1,0 +1,161 @@
+"""Unit tests of the labeler's free-space consistency, pair costs and assignment (issue 18)."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sparseart.labelers.consistency import CONSISTENT, HIDDEN, VIOLATION, state_views, visible_fraction
+from sparseart.labelers.correspondence import (Assignment, Group, PairCandidate, _Screw, assign, manhattan_frame,
+                                               mask_agreement, prefer_small_turns)
+from sparseart.labelers.rules import _downsample
+from sparseart.types import Camera, Frame, LabelledCloud, Scene
+
+K = np.array([[100.0, 0.0, 39.5], [0.0, 100.0, 29.5], [0.0, 0.0, 1.0]])
+
+
+def _wall_scene(depth_m: float = 2.0, cam_to_world: np.ndarray | None = None) -> tuple[Scene, LabelledCloud]:
+    """One 80x60 view of a wall ``depth_m`` in front of the camera, with its cloud in the world frame."""
+    cam_to_world = np.eye(4) if cam_to_world is None else cam_to_world
+    depth = np.full((60, 80), depth_m)
+    depth[:, :10] = 0.0                          # nothing seen on the left edge (background)
+    frame = Frame(state="end", index=0, rgb_path=Path("end/rgb/000.png"), rgb=np.zeros((60, 80, 3), np.uint8),
+                  depth=depth, camera=Camera(K=K, width=80, height=60, cam_to_world=cam_to_world))
+    v, u = np.nonzero(depth > 0)
+    z = depth[v, u]
+    camera_points = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    world = camera_points @ cam_to_world[:3, :3].T + cam_to_world[:3, 3]
+    n = len(world)
+    cloud = LabelledCloud(state="end", points=world, colors=np.zeros((n, 3)), segment=np.full(n, -1),
+                          frame_index=np.zeros(n, np.int64), pixel_index=(v * 80 + u).astype(np.int64),
+                          confidence=np.ones(n))
+    scene = Scene(root=Path("."), start=[], end=[frame])
+    return scene, cloud
+
+
+@pytest.mark.parametrize("moved", [False, True])
+def test_views_tell_seen_surface_free_space_and_hidden(moved):
+    """A point on the wall is consistent, one in front of it (seen through) a violation, one behind
+    it hidden; the camera is recovered from the cloud, wherever the world frame puts it."""
+    pose = np.eye(4)
+    if moved:
+        angle = np.radians(30.0)
+        pose[:3, :3] = [[np.cos(angle), 0, np.sin(angle)], [0, 1, 0], [-np.sin(angle), 0, np.cos(angle)]]
+        pose[:3, 3] = [0.3, -0.2, 1.0]
+    scene, cloud = _wall_scene(cam_to_world=pose)
+    views = state_views(cloud, scene, margin=0.05)
+    assert len(views.views) == 1
+    camera_points = np.array([[0.0, 0.0, 2.0], [0.0, 0.0, 1.0], [0.0, 0.0, 3.0], [-0.365, 0.0, 1.0], [50.0, 0, 1.0]])
+    world = camera_points @ pose[:3, :3].T + pose[:3, 3]
+    labels = views.classify(world)
+    assert labels.tolist() == [CONSISTENT, VIOLATION, HIDDEN, VIOLATION, HIDDEN]
+
+
+def test_no_scene_means_no_views_and_plain_overlap():
+    _, cloud = _wall_scene()
+    views = state_views(cloud, None, margin=0.05)
+    assert not views
+    hits = np.array([True, False, False, False])
+    # Hidden points do not count, but the denominator is at least 40 % of the points.
+    assert visible_fraction(np.array([HIDDEN] * 4), hits) == pytest.approx(1 / 1.6)
+    assert visible_fraction(np.array([CONSISTENT, VIOLATION, VIOLATION, VIOLATION]), hits) == pytest.approx(0.25)
+
+
+def _cloud(segment_source: dict[int, tuple[int, int]]) -> LabelledCloud:
+    return LabelledCloud(state="start", points=np.zeros((0, 3)), colors=np.zeros((0, 3)),
+                         segment=np.zeros(0, np.int64), frame_index=np.zeros(0, np.int64),
+                         pixel_index=np.zeros(0, np.int64), confidence=np.zeros(0), segment_source=segment_source)
+
+
+def test_mask_ids_used_only_when_they_agree_across_images():
+    start = _cloud({1: (0, 1), 65537: (1, 1), 2: (0, 2), 65538: (1, 2), 3: (0, 3)})
+    end = _cloud({1: (0, 1), 2: (0, 3), 3: (0, 2)})
+    start_groups = [Group([1, 65537], np.arange(3)), Group([2, 65538], np.arange(3)), Group([3], np.arange(3))]
+    end_groups = [Group([1], np.arange(3)), Group([2], np.arange(3)), Group([3], np.arange(3))]
+    agreement = mask_agreement(start, end, start_groups, end_groups)
+    assert agreement.tolist() == [[1, -1, -1], [-1, -1, 1], [-1, 1, -1]]
+    # Scrambled ids: one group carries two ids -> no agreement at all.
+    scrambled = _cloud({1: (0, 1), 65537: (1, 7), 2: (0, 2), 65538: (1, 2), 3: (0, 3)})
+    assert mask_agreement(scrambled, end, start_groups, end_groups) is None
+
+
+def _candidate(i: int, j: int, score: float, moved: bool = True) -> PairCandidate:
+    transform = np.eye(4)
+    if moved:
+        transform[0, 3] = 0.3
+    return PairCandidate(i, j, transform, score, identity=0.0, travel=0.3 if moved else 0.0)
+
+
+def test_assignment_keeps_a_runner_up_and_its_cost_margin():
+    """Two twins that pair either way at nearly equal cost: the runner-up swaps them and the
+    margin is small; a clear winner leaves a large margin."""
+    candidates = {(0, 0): _candidate(0, 0, 0.99, moved=False),
+                  (1, 1): _candidate(1, 1, 0.90), (2, 2): _candidate(2, 2, 0.90),
+                  (1, 2): _candidate(1, 2, 0.89), (2, 1): _candidate(2, 1, 0.89)}
+    moving = {(1, 1), (2, 2), (1, 2), (2, 1)}
+    result = assign(candidates, 3, 3, diameter=1.0, match_min_score=0.3, moving=moving)
+    assert isinstance(result, Assignment)
+    assert result.pairs == [(0, 0), (1, 1), (2, 2)]
+    assert sorted(result.runner_up) == [(0, 0), (1, 2), (2, 1)]
+    assert result.margin == pytest.approx(0.02, abs=1e-9)
+    candidates[(1, 2)].physics = candidates[(2, 1)].physics = 0.3    # the swap pushes into a neighbour
+    clear = assign(candidates, 3, 3, diameter=1.0, match_min_score=0.3, moving=moving)
+    assert clear.pairs == [(0, 0), (1, 1), (2, 2)] and clear.margin > 0.5
+
+
+def test_small_turn_wins_a_tie():
+    flip = np.eye(4)
+    flip[:3, :3] = np.diag([1.0, -1.0, -1.0])
+    turn = np.eye(4)
+    turn[:3, :3] = [[1, 0, 0], [0, 0, -1], [0, 1, 0]]
+    assert prefer_small_turns([(0.71, flip), (0.68, turn)])[1] is turn
+    assert prefer_small_turns([(0.90, flip), (0.68, turn)])[1] is flip
+    assert prefer_small_turns([]) == (-1.0, None)
+
+
+def test_screw_interpolation_reaches_the_motion_and_its_inverse():
+    rng = np.random.default_rng(0)
+    from scipy.spatial.transform import Rotation
+
+    transform = np.eye(4)
+    transform[:3, :3] = Rotation.from_rotvec([0.2, -0.5, 0.9]).as_matrix()
+    transform[:3, 3] = [0.3, -0.1, 0.4]
+    np.testing.assert_allclose(_Screw(transform).at(1.0), transform, atol=1e-9)
+    np.testing.assert_allclose(_Screw(transform, -1.0).at(1.0), np.linalg.inv(transform), atol=1e-9)
+    half = _Screw(transform).at(0.5)
+    np.testing.assert_allclose(half @ half, transform, atol=1e-9)
+    slide = np.eye(4)
+    slide[:3, 3] = rng.normal(size=3)
+    np.testing.assert_allclose(_Screw(slide).at(0.25)[:3, 3], 0.25 * slide[:3, 3])
+
+
+def test_manhattan_frame_finds_a_turned_box():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(1)
+    faces = []
+    for axis in range(3):
+        for side in (-0.5, 0.5):
+            face = rng.uniform(-0.5, 0.5, size=(1500, 3)) * [1.0, 0.6, 0.8]
+            face[:, axis] = side * [1.0, 0.6, 0.8][axis]
+            faces.append(face)
+    rotation = Rotation.from_rotvec([0.3, 0.5, -0.2]).as_matrix()
+    box = np.concatenate(faces) @ rotation.T
+    frame = manhattan_frame(box, radius=0.03)
+    np.testing.assert_allclose(np.abs(frame.T @ rotation).max(axis=1), 1.0, atol=0.02)
+
+
+def test_downsample_keeps_segments_and_maps_every_point():
+    rng = np.random.default_rng(2)
+    n = 5000
+    points = rng.uniform(0, 1, size=(n, 3))
+    segment = (points[:, 0] > 0.5).astype(np.int64)
+    cloud = LabelledCloud(state="start", points=points, colors=np.zeros((n, 3)), segment=segment,
+                          frame_index=np.zeros(n, np.int64), pixel_index=np.arange(n), confidence=np.ones(n))
+    work, mapping = _downsample(cloud, 0.1)
+    assert len(work) < n and mapping.shape == (n,)
+    assert np.all(work.segment[mapping] == segment)
+    assert np.all(np.abs(work.points[mapping] - points) <= 0.1 * np.sqrt(3) + 1e-12)
+    same, identity = _downsample(cloud, 0.0)
+    assert same is cloud and np.array_equal(identity, np.arange(n))

