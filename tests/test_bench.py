@@ -32,7 +32,7 @@ def test_grid_is_one_factor_at_a_time():
     groups = {"views": {"views"}, "posed": {"posed"}, "depth": {"depth_noise", "flying_pixels"},
               "pose": {"pose_noise_deg", "pose_noise_m"}, "refine": {"refine"},
               "masks": {"scramble_masks"}, "no_masks": {"use_masks"}, "segmenter": {"segmenter"},
-              "budget": {"budget"}}
+              "budget": {"budget"}, "unposed_no_masks": {"posed", "use_masks"}}
     realistic = next(s for s in settings if s.name == "realistic")
     assert not realistic.posed and realistic.views == 3 and min(realistic.realism.levels().values()) == 1.0
     by_name = {s.name: s for s in settings}

@@ -58,7 +58,8 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
     Clean renders -- default: 3 views, posed, no depth noise, no pose noise, no refinement; then
     views 1 / 2 / 4, unposed, depth noise 1 % and 3 % (each with flying pixels on half the
     depth-edge pixels), pose noise 0.5 deg + 0.5 cm (object units), mask ids scrambled per image,
-    no masks (motion split), the built-in image segmenter instead of the masks, the fit's ``fast`` and
+    no masks (motion split), unposed without masks (the hardest clean case for look-alike parts:
+    two factors at once), the built-in image segmenter instead of the masks, the fit's ``fast`` and
     ``best`` budgets (error against seconds per budget), refinement.
     Realistic renders (:mod:`sparseart.datasets.realism`, every knob at level 1, unposed) --
     ``realistic`` (3 views), ``realistic-1view``, ``realistic+refine``, and ``knob-NAME``: one knob
@@ -79,6 +80,7 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
                 replace(base, pose_noise_deg=0.5, pose_noise_m=0.005, name="pose0.5deg0.5cm"),
                 replace(base, scramble_masks=True, name="masks-scrambled"),
                 replace(base, use_masks=False, name="no-masks"),
+                replace(base, posed=False, use_masks=False, name="unposed-no-masks"),
                 replace(base, segmenter="builtin", name="builtin-segmenter"),
                 replace(base, budget="fast", name="budget-fast"), replace(base, budget="best", name="budget-best"),
                 realistic, replace(realistic, views=1, name="realistic-1view"),
