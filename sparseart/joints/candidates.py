@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from sparseart.geometry.clouds import median_spacing
 from sparseart.geometry.transforms import apply_transform, axis_angle_deg, make_transform
 from sparseart.joints.fit import FitConfig, fit_joint
+from sparseart.joints.uncertainty import add_frame_sigma, frame_misfit
 from sparseart.types import JointEstimate, LabelledCloud, PartLabels, PartResult
 
 MIN_PART_POINTS = 20
@@ -21,6 +22,8 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
               config: FitConfig | None = None, warnings: list[str]) -> list[PartResult]:
     """Fit every movable part's joint (:func:`fit_part`); parts with too few points get a warning
     and no joint. Revolute origins are moved to the axis point nearest the object's median point.
+    The stated uncertainty gains the static frame's own error (:func:`~sparseart.joints.uncertainty.
+    frame_misfit`: how far the static part's two states disagree beyond their sampling).
     Returns one :class:`PartResult` per part of ``labels``; appends warnings prefixed by the part."""
     object_centre = np.median(start.points, axis=0)
     static_mask = labels.start_part == 0
@@ -30,6 +33,9 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
     movable = [p.id for p in labels.parts if p.role == "movable"]
     support_mask = ~np.isin(labels.start_part, movable)
     support_points = start.points[support_mask] if support_mask.sum() >= MIN_PART_POINTS else None
+    # how far the static part's two states disagree beyond sampling: the joint's frame error
+    misfit, static_radius = frame_misfit(start.points[static_mask], end.points[labels.end_part == 0],
+                                         seed=(config or FitConfig()).seed)
     results = []
     for spec in labels.parts:
         start_mask = labels.start_part == spec.id
@@ -55,6 +61,11 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
             continue
         if joint.type == "revolute":
             joint.origin = point_on_line_nearest(joint.origin, joint.axis, object_centre)
+        if misfit > 0:
+            part_radius = float(joint.diagnostics.get("part_radius", 0.0))
+            joint.diagnostics["uncertainty_before_frame"] = dict(joint.uncertainty)
+            joint.diagnostics["frame_misfit"] = {"misfit": misfit, "static_radius": static_radius}
+            joint.uncertainty = add_frame_sigma(joint.uncertainty, misfit, static_radius, part_radius)
         warnings.extend(f"part {spec.id}: {w}" for w in joint.warnings)
         result.joint = joint
     return results

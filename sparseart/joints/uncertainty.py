@@ -37,7 +37,8 @@ from sparseart.joints.config import UNCERTAINTY_FLOOR
 from sparseart.joints.optimise import ModelFit, Problem, one_to_one_pairs, pair_weights
 from sparseart.joints.part import MIN_POINTS, Sample
 
-__all__ = ["UNCERTAINTY_FLOOR", "axis_sigma_deg", "block_jackknife_covariance", "floor_covariance",
+__all__ = ["UNCERTAINTY_FLOOR", "add_frame_sigma", "axis_sigma_deg", "block_jackknife_covariance", "floor_covariance",
+           "frame_misfit",
            "half_sample_covariance", "prismatic_sigma", "resample_covariance", "revolute_sigma", "spatial_blocks"]
 
 
@@ -187,3 +188,60 @@ def prismatic_sigma(covariance: np.ndarray, scale: float, origin_sigma: float) -
     """{"axis_deg", "origin", "distance" (input units)} of a prismatic (3, 3) covariance."""
     return {"axis_deg": axis_sigma_deg(covariance), "origin": float(origin_sigma),
             "distance": float(np.sqrt(max(covariance[2, 2], 0.0))) * scale}
+
+
+FRAME_SAMPLE = 5000           # static start points sampled for the frame misfit
+FRAME_TARGET_SAMPLE = 20000   # static end points in its KD-tree
+FRAME_REACH_SPACINGS = 10.0   # static points farther than this from the other state are unseen there
+
+
+def frame_misfit(static_start: np.ndarray, static_end: np.ndarray, seed: int = 0) -> tuple[float, float]:
+    """How far the two states' static parts disagree beyond their sampling: (misfit, radius).
+
+    static_start (N, 3) / static_end (M, 3) float64, one frame, any units. misfit = the RMS
+    distance from a static start point to the nearest static end point, over the points the end
+    state also saw (within ``FRAME_REACH_SPACINGS`` spacings), with the sampling's share (one
+    point spacing of the end cloud) removed in quadrature: 0 for states that agree to their
+    sampling (posed clean renders, a good registration), ~1-3 cm on reconstructor-grade depth
+    (smooth warps, per-view scale) where the joint's frame itself is off. radius = RMS distance of
+    the static start points from their centroid. (0, 0) with fewer than 50 points per side.
+    O(S log M) for S, M the capped samples.
+    """
+    from sparseart.geometry.clouds import median_spacing
+
+    if len(static_start) < 50 or len(static_end) < 50:
+        return 0.0, 0.0
+    rng = np.random.default_rng(seed)
+    start = static_start[rng.choice(len(static_start), min(len(static_start), FRAME_SAMPLE), replace=False)]
+    end = static_end[rng.choice(len(static_end), min(len(static_end), FRAME_TARGET_SAMPLE), replace=False)]
+    spacing = median_spacing(end)
+    distance = cKDTree(end).query(start, distance_upper_bound=FRAME_REACH_SPACINGS * spacing)[0]
+    distance = distance[np.isfinite(distance)]
+    if len(distance) < 50:
+        return 0.0, 0.0
+    raw = float(np.sqrt(np.mean(distance ** 2)))
+    misfit = float(np.sqrt(max(raw ** 2 - spacing ** 2, 0.0)))
+    radius = float(np.sqrt(np.mean(np.sum((start - start.mean(axis=0)) ** 2, axis=1))))
+    return misfit, radius
+
+
+def add_frame_sigma(uncertainty: dict[str, float], misfit: float, radius: float, part_radius: float) -> dict[str, float]:
+    """The stated 1-sigma with the static frame's own error added in quadrature.
+
+    A static part whose two states disagree by ``misfit`` (RMS, scene units) over a body of RMS
+    ``radius`` leaves the frame the joint is expressed in turned by ~misfit / radius (rad) and
+    shifted by ~misfit: the axis direction and a revolute angle carry the turn (the angle over the
+    part's own radius too), the origin and a slide the shift. Systematic (smooth depth warps, scale
+    errors), so not divided by any point count. Returns a new dict; unchanged when misfit is 0.
+    """
+    if misfit <= 0 or radius <= 0:
+        return dict(uncertainty)
+    turn = misfit / radius
+    out = dict(uncertainty)
+    out["axis_deg"] = float(np.hypot(out.get("axis_deg", 0.0), np.degrees(turn)))
+    out["origin"] = float(np.hypot(out.get("origin", 0.0), misfit))
+    if "angle" in out:
+        out["angle"] = float(np.hypot(out["angle"], max(turn, misfit / max(part_radius, 1e-12))))
+    if "distance" in out:
+        out["distance"] = float(np.hypot(out["distance"], misfit))
+    return out

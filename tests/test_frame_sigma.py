@@ -1,0 +1,52 @@
+"""The static frame's own error in the stated uncertainty (sparseart.joints.uncertainty.frame_misfit,
+add_frame_sigma): zero when the static part's two states agree to their sampling, the frame's turn
+when they do not, unit-free."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from sparseart.joints.uncertainty import add_frame_sigma, frame_misfit
+
+
+def _box_surface(count: int, rng: np.random.Generator) -> np.ndarray:
+    """Points on the surface of a 1 x 0.8 x 0.6 box (a cabinet carcass)."""
+    points = rng.uniform(-0.5, 0.5, size=(count, 3)) * [1.0, 0.8, 0.6]
+    face = rng.integers(0, 3, size=count)
+    points[np.arange(count), face] = np.sign(rng.uniform(-1, 1, size=count)) * np.array([0.5, 0.4, 0.3])[face]
+    return points
+
+
+def test_states_that_agree_to_their_sampling_add_nothing():
+    rng = np.random.default_rng(0)
+    start = _box_surface(20000, rng)
+    end = start + rng.normal(scale=1e-4, size=start.shape)    # the same surface, sampled alike
+    misfit, radius = frame_misfit(start, end)
+    assert misfit == 0.0 and radius > 0.3
+    sigma = {"axis_deg": 0.5, "origin": 0.01, "angle": 0.01}
+    assert add_frame_sigma(sigma, misfit, radius, 0.3) == sigma
+
+
+def _turned_sigma(turn_deg: float, unit: float) -> dict:
+    rng = np.random.default_rng(1)
+    start = _box_surface(20000, rng)
+    axis = np.array([0.3, 1.0, 0.2]) / np.linalg.norm([0.3, 1.0, 0.2])
+    end = Rotation.from_rotvec(np.radians(turn_deg) * axis).apply(start)
+    misfit, radius = frame_misfit(start * unit, end * unit)
+    return add_frame_sigma({"axis_deg": 0.3, "origin": 0.001 * unit, "distance": 0.002 * unit}, misfit, radius,
+                           0.3 * unit)
+
+
+def test_a_turned_static_frame_widens_the_sigma_with_its_turn_in_any_unit():
+    small, large = _turned_sigma(2.0, 1.0), _turned_sigma(4.0, 1.0)   # (1 deg: below the spacing here)
+    assert 0.3 < small["axis_deg"] < large["axis_deg"] < 4.0 * 2      # grows with the turn, never beyond ~it
+    assert large["axis_deg"] > 1.0                                     # a 4 deg frame turn is not hidden
+    assert large["origin"] > 0.001 and large["distance"] > 0.002 and "angle" not in large
+    in_mm = _turned_sigma(4.0, 1000.0)
+    assert in_mm["axis_deg"] == pytest.approx(large["axis_deg"], rel=1e-6)
+    assert in_mm["origin"] == pytest.approx(1000.0 * large["origin"], rel=1e-6)
+
+
+def test_too_few_static_points_give_no_term():
+    assert frame_misfit(np.zeros((10, 3)), np.zeros((10, 3))) == (0.0, 0.0)
