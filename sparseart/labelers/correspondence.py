@@ -312,6 +312,27 @@ def register_sets(ctx: PairContext, start_idx: np.ndarray, end_idx: np.ndarray,
     return _register_pair(sub, 0, 0, 0.0, rng)
 
 
+def blocked_step_share(transform: np.ndarray, direction: float, points: np.ndarray, radius: float,
+                       near_surface) -> float:
+    """The largest share of ``points`` that a small step of the motion pushes onto a surface they
+    were not already touching (``near_surface(points) -> (n,) bool``: within ``radius`` of another
+    surface). Steps are ``STEP_FRACTIONS`` of the screw-interpolated motion (``direction`` -1: of
+    its inverse), at least ``MIN_STEP_RADII`` radii for the median point, at most half of it; 0 for
+    motions whose median travel is under two such steps. O(len(STEP_FRACTIONS)) calls of near_surface.
+    """
+    screw = _Screw(transform, direction)
+    travel = float(np.median(np.linalg.norm(apply(screw.at(1.0), points) - points, axis=1)))
+    if travel < 2.0 * MIN_STEP_RADII * radius:
+        return 0.0
+    touching = near_surface(points)
+    least = MIN_STEP_RADII * radius / travel
+    worst = 0.0
+    for fraction in STEP_FRACTIONS:
+        step = min(max(fraction, least), 0.5)
+        worst = max(worst, float(np.mean(near_surface(apply(screw.at(step), points)) & ~touching)))
+    return worst
+
+
 def blocked_share(ctx: PairContext, i: int, j: int, transform: np.ndarray) -> float:
     """Physics: the share of a part pushed into another surface by a small step of its motion.
 
@@ -331,21 +352,9 @@ def blocked_share(ctx: PairContext, i: int, j: int, transform: np.ndarray) -> fl
         if obstacles is None or len(points) == 0:
             shares.append(0.0)
             continue
-        screw = _Screw(transform, direction)
-        whole = apply(screw.at(1.0), points)
-        median_travel = float(np.median(np.linalg.norm(whole - points, axis=1)))
-        if median_travel < 2.0 * MIN_STEP_RADII * ctx.radius:
-            shares.append(0.0)
-            continue
-        touching = obstacles.query(points, k=1, distance_upper_bound=ctx.radius)[0] < ctx.radius
-        least = MIN_STEP_RADII * ctx.radius / median_travel
-        worst = 0.0
-        for fraction in STEP_FRACTIONS:
-            step = min(max(fraction, least), 0.5)
-            moved = apply(screw.at(step), points)
-            near = obstacles.query(moved, k=1, distance_upper_bound=ctx.radius)[0] < ctx.radius
-            worst = max(worst, float(np.mean(near & ~touching)))
-        shares.append(worst)
+        shares.append(blocked_step_share(
+            transform, direction, points, ctx.radius,
+            lambda p, tree=obstacles: tree.query(p, k=1, distance_upper_bound=ctx.radius)[0] < ctx.radius))
     return float(np.mean(shares))
 
 

@@ -35,8 +35,8 @@ from scipy.spatial import cKDTree
 
 from ..types import LabelledCloud
 from .consistency import HIDDEN, VIOLATION, StateViews
-from .correspondence import (MIN_STEP_RADII, PHYSICS_WEIGHT, SLIDE_WEIGHT, STEP_FRACTIONS, PairContext, _Screw, apply,
-                             motion_size, refine_icp, register_sets, slide_sine_points)
+from .correspondence import (PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, blocked_step_share, motion_size,
+                             refine_icp, register_sets, slide_sine_points)
 
 HIDDEN_CREDIT = 0.5
 TIGHTEN_POINTS = 600
@@ -188,27 +188,14 @@ class _Ratings:
             mask[part] = True
             mask[owned] = True
             points = cloud.points[owned[:: max(1, len(owned) // PHYSICS_SAMPLE)]]
-            screw = _Screw(transform, direction)
-            whole = apply(screw.at(1.0), points)
-            travel = float(np.median(np.linalg.norm(whole - points, axis=1)))
-            if travel < 2.0 * MIN_STEP_RADII * self.radius:
-                shares.append(0.0)
-                continue
 
-            def near_other(p: np.ndarray) -> np.ndarray:
+            def near_other(p: np.ndarray, tree=tree, mask=mask) -> np.ndarray:
                 distance, index = tree.query(p, k=8, distance_upper_bound=self.radius)
                 found = distance < self.radius
                 index = np.where(found, index, 0)
                 return np.any(found & ~mask[index], axis=1)
 
-            touching = near_other(points)
-            least = MIN_STEP_RADII * self.radius / travel
-            worst = 0.0
-            for fraction in STEP_FRACTIONS:
-                step = min(max(fraction, least), 0.5)
-                stepped = apply(screw.at(step), points)
-                worst = max(worst, float(np.mean(near_other(stepped) & ~touching)))
-            shares.append(worst)
+            shares.append(blocked_step_share(transform, direction, points, self.radius, near_other))
         return float(np.mean(shares))
 
 
