@@ -68,6 +68,11 @@ class Frame:
     confidence_path: Path | None = None
 
     @property
+    def image(self) -> str:
+        """The image as the scene folder names it, ``STATE/rgb/NAME`` (reports and warnings)."""
+        return f"{self.state}/rgb/{self.rgb_path.name}"
+
+    @property
     def shape(self) -> tuple[int, int]:
         return int(self.rgb.shape[0]), int(self.rgb.shape[1])
 

@@ -97,7 +97,7 @@ class ViewInfo:
 
     state: str
     index: int
-    name: str
+    name: str                     # the image, STATE/rgb/NAME (Frame.image)
     how: str = "unregistered"     # reference | features | geometry | unregistered
     inliers: int = 0
     residual: float | None = None
@@ -691,8 +691,8 @@ def register_scene(frames: dict[str, list[Frame]], pointmaps: dict[str, list[Poi
     reasons: dict[int, list[str]] = {v: [] for v in range(n)}
     for p in pairs:
         if len(p.points_a) < MIN_PAIR_MATCHES:
-            reasons[p.a].append(f"{len(p.points_a)} feature matches with {_image(all_frames[p.b])}")
-            reasons[p.b].append(f"{len(p.points_a)} feature matches with {_image(all_frames[p.a])}")
+            reasons[p.a].append(f"{len(p.points_a)} feature matches with {all_frames[p.b].image}")
+            reasons[p.b].append(f"{len(p.points_a)} feature matches with {all_frames[p.a].image}")
     began = time.perf_counter()
     roughness = [depth_roughness(p) for p in all_maps]
     roughness = float(np.nanmedian(roughness)) if np.isfinite(roughness).any() else float("nan")
@@ -743,7 +743,7 @@ def _finish(ctx: _Context, comps: _Components, reasons: dict[int, list[str]], se
         clock = now
 
     n, n_start, frames = len(ctx.frames), ctx.n_start, ctx.frames
-    info = [ViewInfo("start" if g < n_start else "end", g if g < n_start else g - n_start, str(f.rgb_path))
+    info = [ViewInfo("start" if g < n_start else "end", g if g < n_start else g - n_start, f.image)
             for g, f in enumerate(frames)]
     warnings: list[str] = []
     reference = comps.of[0]
@@ -787,7 +787,7 @@ def _finish(ctx: _Context, comps: _Components, reasons: dict[int, list[str]], se
         if v not in registered:
             why = "; ".join(dict.fromkeys(reasons[v])) or "no matches"
             info[v].reason = why[:400]
-            warnings.append(f"{_image(frames[v])}: view could not be registered to the other views "
+            warnings.append(f"{frames[v].image}: view could not be registered to the other views "
                             f"({why[:400]}); it is left out")
     if ctx.polish and not ctx.relative and not ctx.roughness > POLISH_MAX_ROUGHNESS:
         _polish(frames, ctx.clouds, poses, registered, info, n_start, ctx.size, warnings)
@@ -811,12 +811,6 @@ def _finish(ctx: _Context, comps: _Components, reasons: dict[int, list[str]], se
     out_poses = {"start": [poses[g] if g in registered else None for g in range(n_start)],
                  "end": [poses[g] if g in registered else None for g in range(n_start, n)]}
     return SceneRegistration(out_poses, aligned, candidates, info, states, rho, warnings, seconds, ctx.roughness)
-
-
-def _image(frame: Frame) -> str:
-    """A frame's image as the scene folder names it: STATE/rgb/NAME."""
-    path = frame.rgb_path
-    return f"{path.parent.parent.name}/rgb/{path.name}"
 
 
 def _reason_text(reasons: dict[int, list[str]], views) -> str:
@@ -867,7 +861,7 @@ def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed
         poses[v] = poses[u] @ transform
         registered.add(v)
         info[v].how = "geometry"
-        warnings.append(f"{_image(frames[v])}: registered to {_image(frames[u])} by geometry only, "
+        warnings.append(f"{frames[v].image}: registered to {frames[u].image} by geometry only, "
                         f"{overlap:.0%} overlap")
 
 
@@ -882,7 +876,7 @@ def _polish(frames, clouds, poses, registered, info, n_start, size, warnings) ->
             target = np.concatenate(placed)
             scale = _matrix_scale(poses[v])
             if spread(target)[2] < PLANAR_FRACTION * size or spread(clouds[v])[2] < PLANAR_FRACTION * size:
-                warnings.append(f"{_image(frames[v])}: ICP polish on a planar cloud may slide along the plane")
+                warnings.append(f"{frames[v].image}: ICP polish on a planar cloud may slide along the plane")
             scaled = clouds[v] * scale
             init = poses[v].copy()
             init[:3, :3] /= scale
@@ -907,8 +901,8 @@ def _check_states(pairs, poses, registered, frames, surfaces, n_start, size, rho
         pb_all.append(_apply(poses[ve], end_side))
         limits.append(thresholds(p.distance * _matrix_scale(poses[vs]), size, rho))
         total += len(p.points_a)
-    names = f"{', '.join(_image(frames[v]) for v in range(n_start))} vs " \
-            f"{', '.join(_image(frames[v]) for v in range(n_start, len(frames)))}"
+    names = f"{', '.join(frames[v].image for v in range(n_start))} vs " \
+            f"{', '.join(frames[v].image for v in range(n_start, len(frames)))}"
     if not pa_all:
         return {"method": "none", "trusted": False, "reason": "no matches across the states"}, []
     points_a, points_b, limit = np.concatenate(pa_all), np.concatenate(pb_all), np.concatenate(limits)

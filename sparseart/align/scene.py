@@ -142,7 +142,7 @@ def _emptied(pointmap: Pointmap) -> Pointmap:
 
 def _given_report(scene: Scene, how: str) -> dict:
     """Registration report of views placed by their cameras ("cameras") or a reconstructor ("model")."""
-    views = [{"image": f"{f.state}/rgb/{f.rgb_path.name}", "registered": True, "how": how,
+    views = [{"image": f.image, "registered": True, "how": how,
               "inliers": None, "residual": None, "scale": 1.0} for f in scene.all_frames]
     return {"views": views, "states": {"method": how, "trusted": True}}
 
@@ -164,9 +164,7 @@ def registration_report(registration: SceneRegistration) -> dict:
     """
     views = []
     for view in registration.views:
-        name = view.name.replace("\\", "/").split("/")
-        image = "/".join(name[-3:]) if len(name) >= 3 else view.name
-        entry = {"image": image, "registered": view.how != "unregistered", "how": view.how,
+        entry = {"image": view.name, "registered": view.how != "unregistered", "how": view.how,
                  "inliers": int(view.inliers), "residual": view.residual, "scale": round(float(view.scale), 5)}
         if view.reason:
             entry["reason"] = view.reason

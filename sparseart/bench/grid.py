@@ -39,15 +39,20 @@ STAGES = ("read", "segment", "lift", "align", "align.register_views", "align.ali
           "peer_segment", "peer_register")
 
 
+def shared_dir() -> Path:
+    """``../shared`` next to the repository (objects, models)."""
+    return Path(__file__).resolve().parents[3] / "shared"
+
+
 def default_partnet_dir() -> Path:
     """``../shared/data/partnet`` next to the repository (the shared objects)."""
-    return Path(__file__).resolve().parents[3] / "shared" / "data" / "partnet"
+    return shared_dir() / "data" / "partnet"
 
 
 def default_matcher_spec() -> str | None:
     """The real XFeat + LighterGlue weights in ``../shared/models`` as a matcher spec, or None when
     they are not there (the ``*-xfeat`` settings are then skipped with that reason)."""
-    models = Path(__file__).resolve().parents[3] / "shared" / "models"
+    models = shared_dir() / "models"
     detector, matcher = models / "xfeat.onnx", models / "lighterglue_L3.onnx"
     return f"xfeat:{detector},{matcher}" if detector.is_file() and matcher.is_file() else None
 

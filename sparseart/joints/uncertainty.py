@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sparseart.geometry.clouds import median_spacing
 from sparseart.joints.config import UNCERTAINTY_FLOOR
 from sparseart.joints.optimise import ModelFit, Problem, one_to_one_pairs, pair_weights
 from sparseart.joints.part import MIN_POINTS, Sample
@@ -207,8 +208,6 @@ def frame_misfit(static_start: np.ndarray, static_end: np.ndarray, seed: int = 0
     the static start points from their centroid. (0, 0) with fewer than 50 points per side.
     O(S log M) for S, M the capped samples.
     """
-    from sparseart.geometry.clouds import median_spacing
-
     if len(static_start) < 50 or len(static_end) < 50:
         return 0.0, 0.0
     rng = np.random.default_rng(seed)
