@@ -38,6 +38,18 @@ def median_spacing(points: np.ndarray, *, sample: int | None = None, rng: np.ran
     return float(np.ptp(points, axis=0).max() * 1e-3) or 1e-12
 
 
+def radius_components(points: np.ndarray, link_radius: float) -> np.ndarray:
+    """Connected components of the radius graph of ``points`` (N, 3): (N,) int64 component label
+    per point, 0..k-1; points closer than ``link_radius`` (same units) are linked. O(N log N + E)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    pairs = cKDTree(points).query_pairs(link_radius, output_type="ndarray")
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
+    _, labels = connected_components(graph, directed=False)
+    return labels.astype(np.int64)
+
+
 def scene_size(points: np.ndarray, max_points: int = 20000) -> float:
     """Median distance of the finite points to their centroid (the scale of RANSAC thresholds).
 

@@ -8,9 +8,9 @@ Cost O(N log N) for the k-NN queries plus O(N * neighbours-within-eps) for the r
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
+
+from sparseart.geometry.clouds import radius_components
 
 
 def clean_part_points(
@@ -51,10 +51,7 @@ def clean_part_points(
         keep[survivors] = True
         return keep
     survivor_points = points[survivors]
-    pairs = cKDTree(survivor_points).query_pairs(eps_factor * median, output_type="ndarray")
-    count = survivors.size
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(count, count))
-    _, component = connected_components(graph, directed=False)
+    component = radius_components(survivor_points, eps_factor * median)
     sizes = np.bincount(component)
     big = sizes >= min_cluster_fraction * sizes.max()
     keep[:] = False

@@ -35,7 +35,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ..types import LabelledCloud
-from .consistency import HIDDEN, StateViews, visible_fraction
+from .consistency import StateViews, visible_fraction
 
 TRAVEL_PENALTY = 0.25       # cost per object diameter a pairing moves its points
 PHYSICS_WEIGHT = 1.5        # cost per share of a part pushed into a surface by a step of its motion

@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..types import LabelledCloud
+from ..geometry.clouds import radius_components
 from .consistency import HIDDEN, VIOLATION, StateViews
 from .correspondence import (PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, blocked_step_share, motion_size,
                              refine_icp, register_sets, slide_sine_points)
@@ -312,7 +312,6 @@ def _residual_pieces(ratings: _Ratings, chosen: list[int], radius: float,
                      min_points: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """Connected pieces of moved points no chosen motion explains (rating <= 0), each paired with
     the other state's unexplained moved points (all of its moved points when too few are left)."""
-    from .rules import _connected_pieces
 
     n_start = len(ratings.start_moved)
     best = (np.stack([ratings.rows[k] for k in chosen]).max(axis=0) if chosen
@@ -324,7 +323,7 @@ def _residual_pieces(ratings: _Ratings, chosen: list[int], radius: float,
                                                  (loose_e, loose_s, ratings.end, ratings.start_moved)):
         if len(loose) < min_points:
             continue
-        labels = _connected_pieces(cloud.points[loose], radius)
+        labels = radius_components(cloud.points[loose], radius)
         counts = np.bincount(labels)
         for label in np.flatnonzero(counts >= min_points):
             piece = loose[labels == label]

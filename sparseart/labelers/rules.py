@@ -37,9 +37,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
-from sparseart.geometry.clouds import median_spacing
+from sparseart.geometry.clouds import median_spacing, radius_components
 from sparseart.geometry.sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 from .consistency import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
@@ -256,21 +255,10 @@ def _motion_split(start: LabelledCloud, end: LabelledCloud, config: RuleLabelerC
             segments[far[unseen]] = UNSEEN
             far = far[~unseen]
         if len(far):
-            labels = _connected_pieces(cloud.points[far], 3.0 * spacing)
+            labels = radius_components(cloud.points[far], 3.0 * spacing)
             segments[far] = labels + 1
         result.append(segments)
     return result[0], result[1]
-
-
-def _connected_pieces(points: np.ndarray, link_radius: float) -> np.ndarray:
-    """Connected components of the radius graph (label per point, 0..k-1). O(N log N)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    pairs = cKDTree(points).query_pairs(link_radius, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
-    _, labels = connected_components(graph, directed=False)
-    return labels.astype(np.int64)
 
 
 def _merge_across_frames(cloud: LabelledCloud, segments: np.ndarray, radius: float,
