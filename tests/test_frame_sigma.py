@@ -50,3 +50,68 @@ def test_a_turned_static_frame_widens_the_sigma_with_its_turn_in_any_unit():
 
 def test_too_few_static_points_give_no_term():
     assert frame_misfit(np.zeros((10, 3)), np.zeros((10, 3))) == (0.0, 0.0)
+
+
+# -- the frame's turn in the type test (fit_joint(frame_error=)) and slides in disguise -------------
+
+def _drawer_front(count: int, rng: np.random.Generator) -> np.ndarray:
+    """Points on a 0.6 x 0.4 x 0.04 slab (a drawer front) at x = 0.52, normal +x."""
+    points = rng.uniform(-0.5, 0.5, size=(count, 3)) * [0.04, 0.6, 0.4] + [0.52, 0.0, 0.0]
+    face = rng.integers(0, 3, size=count)
+    points[np.arange(count), face] = (np.sign(rng.uniform(-1, 1, size=count)) * np.array([0.02, 0.3, 0.2])[face]
+                                      + np.array([0.52, 0.0, 0.0])[face])
+    return points
+
+
+def _slide_in_a_turned_frame(turn_deg: float):
+    """A drawer front sliding 0.2 along +x, both states seen in a frame turned by ``turn_deg``
+    (what a smooth depth warp does to the whole end state): part and static body turn alike."""
+    rng = np.random.default_rng(3)
+    body, front = _box_surface(20000, rng), _drawer_front(6000, rng)
+    turn = Rotation.from_rotvec(np.radians(turn_deg) * np.array([0.0, 0.6, 0.8]))
+    body_end = turn.apply(_box_surface(20000, rng))
+    front_end = turn.apply(_drawer_front(6000, rng) + [0.2, 0.0, 0.0])
+    noise = 5e-4
+    return (body + rng.normal(scale=noise, size=body.shape), body_end + rng.normal(scale=noise, size=body_end.shape),
+            front + rng.normal(scale=noise, size=front.shape), front_end + rng.normal(scale=noise, size=front_end.shape))
+
+
+def test_a_slide_in_a_turned_frame_stays_a_slide_once_the_frame_turn_is_known():
+    """Without the frame's error the 3 deg turn of the whole end state is a significant rotation of
+    the part (revolute); with it (frame_misfit of the static body) the same data give a slide
+    along the drawer's normal, with the turn in its stated axis sigma."""
+    from sparseart.joints.fit import fit_joint
+
+    body, body_end, front, front_end = _slide_in_a_turned_frame(3.0)
+    blind = fit_joint(front, front_end)
+    assert blind.type == "revolute"
+    frame_error = frame_misfit(body, body_end)
+    assert np.degrees(frame_error[0] / frame_error[1]) > 0.8   # (nearest-surface distances: below the turn)
+    aware = fit_joint(front, front_end, frame_error=frame_error)
+    assert aware.type == "prismatic"
+    error = np.degrees(np.arccos(min(abs(aware.axis[0]), 1.0)))
+    assert error < 15.0                      # the frame's turn tilts the slide (lever ~0.7 over 0.2)
+    # the stated sigma grows from the frame (nearest-surface misfits see ~40 % of a rigid turn)
+    assert aware.diagnostics["uncertainty_before_frame"]["axis_deg"] < 1.0 < 0.25 * error < aware.uncertainty["axis_deg"]
+
+
+def _estimate(kind: str, residual: float, **diagnostics) -> "JointEstimate":
+    from sparseart.types import JointEstimate
+
+    return JointEstimate(type=kind, axis=np.array([1.0, 0.0, 0.0]), origin=np.zeros(3),
+                         angle=0.2 if kind == "revolute" else None, distance=None if kind == "revolute" else 0.2,
+                         transform=np.eye(4), uncertainty={}, residual=residual, confidence=1.0,
+                         diagnostics=diagnostics)
+
+
+def test_revolute_candidates_that_are_slides_in_disguise_give_way_to_a_slide():
+    from sparseart.joints.candidates import plausible_fits
+    from sparseart.joints.config import FitConfig
+
+    slide = _estimate("prismatic", 0.026)
+    flap = _estimate("revolute", 0.022, revolute_angle_z=9.0, revolute_pivot_factor=5.8)    # far pivot
+    frame_turn = _estimate("revolute", 0.021, revolute_angle_z=1.0, revolute_pivot_factor=0.5)  # insignificant
+    hinge = _estimate("revolute", 0.020, revolute_angle_z=60.0, revolute_pivot_factor=1.5)
+    config = FitConfig()
+    assert plausible_fits([slide, flap, frame_turn, hinge], config) == [slide, hinge]
+    assert plausible_fits([flap, frame_turn], config) == [flap, frame_turn]     # no slide to give way to

@@ -3,14 +3,13 @@
 ``clean_part_points`` = statistical outlier removal (mean distance to the k nearest neighbours,
 robust threshold) followed by connected components of a radius graph (eps from the median point
 spacing), keeping every cluster that holds at least ``min_cluster_fraction`` of the largest one.
-Cost O(N log N) for the k-NN queries plus O(N * neighbours-within-eps) for the radius graph.
+Cost O(N log N) for the one k-NN query; the clusters reuse its neighbours (O(N k)).
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sparseart.geometry.clouds import radius_components
 
 
 def clean_part_points(
@@ -24,7 +23,8 @@ def clean_part_points(
 
     A point is an outlier when its mean distance to its ``neighbours`` nearest neighbours exceeds
     ``max(median + mad_factor * 1.4826 * MAD, 2 * median)`` of that statistic over the set.
-    Survivors are linked when closer than ``eps = eps_factor * median k-NN mean distance``;
+    Survivors are linked when one is among the other's ``neighbours`` nearest and closer than
+    ``eps = eps_factor * median k-NN mean distance``;
     connected clusters smaller than ``min_cluster_fraction`` x the largest are dropped.
     Non-finite rows are always dropped. Sets too small for statistics (< neighbours + 2 finite
     points) are returned unchanged apart from non-finite rows. Never returns an all-False mask
@@ -39,7 +39,7 @@ def clean_part_points(
         return keep
     finite_points = points[finite_index]
     tree = cKDTree(finite_points)
-    distances, _ = tree.query(finite_points, k=neighbours + 1)
+    distances, index = tree.query(finite_points, k=neighbours + 1)
     mean_distance = distances[:, 1:].mean(axis=1)
     median = float(np.median(mean_distance))
     mad = float(np.median(np.abs(mean_distance - median)))
@@ -50,13 +50,33 @@ def clean_part_points(
         keep[:] = False
         keep[survivors] = True
         return keep
-    survivor_points = points[survivors]
-    component = radius_components(survivor_points, eps_factor * median)
+    component = _knn_components(distances, index, inlier, eps_factor * median)
     sizes = np.bincount(component)
     big = sizes >= min_cluster_fraction * sizes.max()
     keep[:] = False
     keep[survivors[big[component]]] = True
     return keep
+
+
+def _knn_components(distances: np.ndarray, index: np.ndarray, inlier: np.ndarray, link: float) -> np.ndarray:
+    """Connected components (labels 0..k-1 per inlier row) of the k-NN graph already queried,
+    keeping the edges shorter than ``link`` between two inliers. On a sampled surface every
+    point's k nearest lie within ``link`` (2.5 x their mean distance), so this links what the
+    radius graph links except through a bridge of points whose k nearest all lie on one side,
+    without the radius graph's second query (measured 0.08 s of 0.14 s at 40k points).
+    distances / index: (N, k + 1) of ``cKDTree.query`` (column 0 = the point itself);
+    inlier: (N,) bool. O(N k)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    rows = np.repeat(np.arange(len(index)), index.shape[1] - 1)
+    cols = index[:, 1:].reshape(-1)
+    near = distances[:, 1:].reshape(-1) < link
+    near &= inlier[rows] & inlier[np.minimum(cols, len(inlier) - 1)] & (cols < len(inlier))
+    renumber = np.cumsum(inlier) - 1                         # inlier row -> survivor index
+    count = int(inlier.sum())
+    graph = coo_matrix((np.ones(int(near.sum())), (renumber[rows[near]], renumber[cols[near]])), shape=(count, count))
+    return connected_components(graph, directed=False)[1].astype(np.int64)
 
 
 def estimate_normals(points: np.ndarray, neighbours: int = 12, at: np.ndarray | None = None,

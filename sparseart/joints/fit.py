@@ -73,8 +73,9 @@ from sparseart.joints.reliability import (
     shape_warnings,
 )
 from sparseart.joints.seeds import initial_motion
-from sparseart.joints.select import choose_type
+from sparseart.joints.select import choose_type, type_test_angle_sigma
 from sparseart.joints.uncertainty import (
+    add_frame_sigma,
     floor_covariance,
     half_sample_covariance,
     prismatic_sigma,
@@ -154,6 +155,7 @@ def fit_joint(
     uncertainty: bool = True,
     start_confidence: np.ndarray | None = None,
     end_confidence: np.ndarray | None = None,
+    frame_error: tuple[float, float] | None = None,
 ) -> JointEstimate:
     """Fit the joint that moves a part from ``start_points`` to ``end_points``.
 
@@ -170,6 +172,12 @@ def fit_joint(
     ``part.prepare_part``); None or all ones fits exactly as without them. Calling again with the
     same arrays, seed, type and config and ``uncertainty=True`` reuses the remembered model fits
     and pays only the uncertainty step.
+    frame_error: optional (misfit, static radius), input units, of
+    ``uncertainty.frame_misfit``: how far the static part's two states disagree. The frame's
+    turn (misfit / radius, rad) joins the angle sigma of the type test (a slide in a warped frame
+    shows a rotation of that size) and the stated uncertainty (``uncertainty.add_frame_sigma``;
+    the part before it in ``diagnostics["uncertainty_before_frame"]``), so the reliability
+    warnings and the confidence see it. None or a zero misfit: the states agree.
     Returns a ``JointEstimate`` in the input frame and units: angle >= 0 radians (axis oriented
     accordingly) or distance >= 0; uncertainty 1-sigma including systematic effects (step 5 of
     the module docstring); warnings for unreliable estimates (step 6, codes in
@@ -192,13 +200,14 @@ def fit_joint(
     if part.key is not None:
         seed_key = (fingerprint(np.asarray(initial_transform, dtype=np.float64)) if initial_transform is not None
                     else tuple(None if c is None else fingerprint(np.asarray(c)) for c in (start_colors, end_colors)))
-        key = (part.key, seed_key, joint_type)
+        key = (part.key, seed_key, joint_type, frame_error)
     with _fitted_lock:
         fitted = _fitted.get(key) if key is not None else None
         if fitted is not None:
             _fitted.move_to_end(key)
     if fitted is None:
-        fitted = _fit_models(part, joint_type, initial_transform, start_colors, end_colors, config, clock)
+        fitted = _fit_models(part, joint_type, initial_transform, start_colors, end_colors, config, clock,
+                             frame_turn=_frame_turn(frame_error))
         if key is not None:
             with _fitted_lock:
                 _fitted[key] = fitted
@@ -210,7 +219,7 @@ def fit_joint(
     fit = fitted.fits[fitted.chosen]
     covariances = _uncertainty(fit, part, config, diagnostics, resample=uncertainty)
     clock.lap("uncertainty")
-    estimate = _estimate(fit, part, covariances, config, diagnostics)
+    estimate = _estimate(fit, part, covariances, config, diagnostics, frame_error)
     clock.lap("reliability")
     estimate.diagnostics["uncertainty_complete"] = bool(uncertainty)
     estimate.diagnostics["seconds"] = dict(clock.seconds)
@@ -224,10 +233,18 @@ def fit_joint(
     return estimate
 
 
+def _frame_turn(frame_error: tuple[float, float] | None) -> float:
+    """The static frame's 1-sigma turn (rad) from ``(misfit, radius)``; 0 without one."""
+    if frame_error is None or frame_error[0] <= 0 or frame_error[1] <= 0:
+        return 0.0
+    return float(frame_error[0] / frame_error[1])
+
+
 def _fit_models(part: PartData, joint_type: str, initial_transform: np.ndarray | None,
                 start_colors: np.ndarray | None, end_colors: np.ndarray | None, config: FitConfig,
-                clock: _Clock) -> _Fitted:
-    """Steps 2-4 of the module docstring: seed -> model fit(s) -> type choice."""
+                clock: _Clock, frame_turn: float = 0.0) -> _Fitted:
+    """Steps 2-4 of the module docstring: seed -> model fit(s) -> type choice (the rotation judged
+    against the frame's turn ``frame_turn``, rad)."""
     diagnostics: dict = {}
     initial, seed_info = initial_motion(part, initial_transform, start_colors, end_colors, config)
     revolute_init, prismatic_init, screw_info = initial_models(initial, part.start)
@@ -241,7 +258,7 @@ def _fit_models(part: PartData, joint_type: str, initial_transform: np.ndarray |
         fits["prismatic"] = fit_model(prismatic_init, part, config)
     clock.lap("optimise")
     if joint_type == "auto":
-        decision, type_info = choose_type(fits["revolute"], fits["prismatic"], config)
+        decision, type_info = choose_type(fits["revolute"], fits["prismatic"], config, frame_turn)
         chosen = decision.joint_type
         diagnostics.update(type_info)
     else:
@@ -252,6 +269,8 @@ def _fit_models(part: PartData, joint_type: str, initial_transform: np.ndarray |
     if "revolute" in fits:
         diagnostics["revolute_pivot_factor"] = _pivot_factor(fits["revolute"], part)
         diagnostics["revolute_angle_deg"] = float(np.degrees(abs(fits["revolute"].x[4])))
+        sigma = type_test_angle_sigma(fits["revolute"], frame_turn)
+        diagnostics["revolute_angle_z"] = float(abs(fits["revolute"].x[4]) / sigma) if sigma > 0 else float("inf")
     clock.lap("select")
     return _Fitted(chosen, fits, diagnostics)
 
@@ -292,8 +311,9 @@ def _pivot_factor(fit: ModelFit, part: PartData) -> float:
 
 
 def _estimate(fit: ModelFit, part: PartData, covariances: dict[str, np.ndarray], config: FitConfig,
-              diagnostics: dict) -> JointEstimate:
-    """Convert a normalised fit into a JointEstimate in input units, with warnings."""
+              diagnostics: dict, frame_error: tuple[float, float] | None = None) -> JointEstimate:
+    """Convert a normalised fit into a JointEstimate in input units, with warnings; the static
+    frame's error (``frame_error``, input units) joins the stated sigma before the warnings."""
     kind, model, x = fit.kind, fit.model, fit.x
     scale, centre, reference, part_radius = part.scale, part.centre, part.reference, part.part_radius
     residual = fit.rms_residual
@@ -330,6 +350,11 @@ def _estimate(fit: ModelFit, part: PartData, covariances: dict[str, np.ndarray],
         warnings += prismatic_warnings(distance, max(jacobian_distance_sigma, noise), distance * scale)
         origin = reference * scale + centre
         estimate_angle, estimate_distance, slide = None, float(distance * scale), float(distance * scale)
+    if frame_error is not None and frame_error[0] > 0:
+        diagnostics["uncertainty_before_frame"] = dict(uncertainty)
+        diagnostics["frame_misfit"] = {"misfit": float(frame_error[0]), "static_radius": float(frame_error[1])}
+        uncertainty = add_frame_sigma(uncertainty, frame_error[0], frame_error[1], part_radius * scale,
+                                      estimate_distance)
     warnings += reliability_warnings(kind, uncertainty, estimate_angle, estimate_distance,
                                      diagnostics.get("scatter_fraction", 0.0), diagnostics.get("inlier_fraction", 1.0),
                                      float(diagnostics.get("screw_angle_deg", 0.0)),

@@ -84,19 +84,29 @@ def select_joint_type(
     return TypeDecision(choice, bic_revolute, bic_prismatic, significant, reason)
 
 
-def choose_type(revolute: ModelFit, prismatic: ModelFit, config: FitConfig) -> tuple[TypeDecision, dict]:
+def type_test_angle_sigma(revolute: ModelFit, frame_turn: float = 0.0) -> float:
+    """The sigma (rad) the rotation's significance is judged against: the revolute fit's Jacobian
+    angle sigma and ``frame_turn`` (rad, 1-sigma turn of the static frame itself,
+    ``uncertainty.frame_misfit``: 0 for states that agree) in quadrature. A frame turned by a
+    smooth depth warp turns every part with it, so a slide then shows a rotation of about that
+    size (measured on realistic renders: 1.1-2.4 deg false rotations against 1.0-2.5 deg turns)."""
+    return float(np.hypot(np.sqrt(max(revolute.covariance[4, 4], 0.0)), frame_turn))
+
+
+def choose_type(revolute: ModelFit, prismatic: ModelFit, config: FitConfig,
+                frame_turn: float = 0.0) -> tuple[TypeDecision, dict]:
     """``select_joint_type`` on two fits of the same part: RSS of the point-to-plane Chamfer
     distances of the shared Chamfer sample, each truncated at the smaller matching clip tau;
-    effective count = distances / ``bic_correlation_factor``; the revolute angle and its Jacobian
-    sigma. Returns the decision and its diagnostics (BIC scores, reason, angle z). O(c)."""
+    effective count = distances / ``bic_correlation_factor``; the revolute angle and its
+    ``type_test_angle_sigma`` (Jacobian sigma with the frame's turn, rad). Returns the decision
+    and its diagnostics (BIC scores, reason). O(c)."""
     tau = min(revolute.tau, prismatic.tau)
     rss = {fit.kind: float(np.sum(np.minimum(fit.chamfer_distances, tau) ** 2)) for fit in (revolute, prismatic)}
     count = revolute.chamfer_distances.size / config.bic_correlation_factor
     angle = float(revolute.x[4])
-    angle_sigma = float(np.sqrt(max(revolute.covariance[4, 4], 0.0)))
+    angle_sigma = type_test_angle_sigma(revolute, frame_turn)
     decision = select_joint_type(rss["revolute"], rss["prismatic"], count, angle, angle_sigma,
                                  z=config.angle_z, min_angle=np.radians(config.min_angle_deg))
     diagnostics = {"bic_revolute": decision.bic_revolute, "bic_prismatic": decision.bic_prismatic,
-                   "type_reason": decision.reason, "angle_significant": decision.angle_significant,
-                   "revolute_angle_z": abs(angle) / angle_sigma if angle_sigma > 0 else float("inf")}
+                   "type_reason": decision.reason, "angle_significant": decision.angle_significant}
     return decision, diagnostics

@@ -224,20 +224,26 @@ def frame_misfit(static_start: np.ndarray, static_end: np.ndarray, seed: int = 0
     return misfit, radius
 
 
-def add_frame_sigma(uncertainty: dict[str, float], misfit: float, radius: float, part_radius: float) -> dict[str, float]:
+def add_frame_sigma(uncertainty: dict[str, float], misfit: float, radius: float, part_radius: float,
+                    distance: float | None = None) -> dict[str, float]:
     """The stated 1-sigma with the static frame's own error added in quadrature.
 
     A static part whose two states disagree by ``misfit`` (RMS, scene units) over a body of RMS
     ``radius`` leaves the frame the joint is expressed in turned by ~misfit / radius (rad) and
     shifted by ~misfit: the axis direction and a revolute angle carry the turn (the angle over the
-    part's own radius too), the origin and a slide the shift. Systematic (smooth depth warps, scale
-    errors), so not divided by any point count. Returns a new dict; unchanged when misfit is 0.
+    part's own radius too), the origin and a slide the shift. A slide of ``distance`` (scene
+    units, prismatic joints) seen in a frame turned about the body's centre also ends displaced
+    by ~turn x radius across its direction, which tilts its axis by atan(turn radius / distance)
+    (a 0.2 slide in a frame turned 3 deg about a centre 0.5 away: ~10 deg). Systematic (smooth
+    depth warps, scale errors), so not divided by any point count. Returns a new dict; unchanged
+    when misfit is 0.
     """
     if misfit <= 0 or radius <= 0:
         return dict(uncertainty)
     turn = misfit / radius
     out = dict(uncertainty)
-    out["axis_deg"] = float(np.hypot(out.get("axis_deg", 0.0), np.degrees(turn)))
+    tilt = turn if not distance or distance <= 0 else max(turn, float(np.arctan2(turn * radius, distance)))
+    out["axis_deg"] = float(np.hypot(out.get("axis_deg", 0.0), np.degrees(tilt)))
     out["origin"] = float(np.hypot(out.get("origin", 0.0), misfit))
     if "angle" in out:
         out["angle"] = float(np.hypot(out["angle"], max(turn, misfit / max(part_radius, 1e-12))))

@@ -263,10 +263,14 @@ def _motion_split(start: LabelledCloud, end: LabelledCloud, config: RuleLabelerC
 
 def _merge_across_frames(cloud: LabelledCloud, segments: np.ndarray, radius: float,
                          config: RuleLabelerConfig, rng: np.random.Generator) -> list[Group]:
-    """Union segments of different frames that cover the same surface. O(S^2 P log P)."""
+    """Union segments of different frames that cover the same surface. O(S^2 P log P).
+
+    A segment takes part with ``min_segment_points`` points; the share floor
+    (``min_segment_share`` of the cloud) applies to the merged group, so a small part seen in
+    several views counts with all of them (a toaster lever half hidden by a hand: 62 + 68 points
+    in two views, each below the 83-point floor, together above it)."""
     ids, counts = np.unique(segments[segments >= 0], return_counts=True)
-    minimum = max(config.min_segment_points, config.min_segment_share * len(cloud))
-    kept = [int(i) for i, c in zip(ids, counts) if c >= minimum]
+    kept = [int(i) for i, c in zip(ids, counts) if c >= config.min_segment_points]
     members = {s: np.flatnonzero(segments == s) for s in kept}
     samples = {s: idx[random_subset(len(idx), config.max_points_per_segment, rng)]
                for s, idx in members.items()}
@@ -292,9 +296,11 @@ def _merge_across_frames(cloud: LabelledCloud, segments: np.ndarray, radius: flo
     for s in kept:
         groups.setdefault(find(s), []).append(s)
     result = []
+    minimum = max(config.min_segment_points, config.min_segment_share * len(cloud))
     for segs in groups.values():
         indices = np.concatenate([members[s] for s in segs])
-        result.append(Group(segments=sorted(segs), indices=np.sort(indices)))
+        if len(indices) >= minimum:
+            result.append(Group(segments=sorted(segs), indices=np.sort(indices)))
     result.sort(key=lambda g: (-len(g.indices), g.segments[0]))
     return result
 
