@@ -261,7 +261,11 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
             first = labeler.label(start, end, scene, aligned=False, motion_hints=[])
             end = align_on_static(start, end, first, warnings, seed=seed)
     with clock.stage("label", f"part labeler: {labeler.name}"):
-        labels = labeler.label(start, end, scene, aligned=True, motion_hints=hints)
+        # A trusted feature alignment of the states (static background and body matched) gives a
+        # known frame as cameras do: a part that moved is kept even when no static segment of the
+        # object is seen in both states (a laptop base hidden behind its open lid).
+        labels = labeler.label(start, end, scene, aligned=True, motion_hints=hints,
+                               posed=True if alignment == "features" else None)
     if alignment in ("features", "model"):
         with clock.stage("align.static", f"static part: ICP polish of the {alignment} alignment"):
             end = polish_on_static(start, end, labels, warnings, seed=seed)

@@ -441,7 +441,8 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
             warnings.append("no segment stayed put clearly (noisy depth?); the one that staying put explains "
                             f"nearly as well as any motion (>= {STILL_EXPLAINS_SHARE:.0%}) is taken as the static base")
         elif posed and not (angle < POSE_ERROR_DEG and shift < POSE_ERROR_DIAMETERS * diameter):
-            warnings.append("no segment is seen in both states staying put; the cameras give the world frame, "
+            warnings.append("no segment is seen in both states staying put; the cameras (or the trusted feature "
+                            "alignment of the states) give the frame, "
                             "so every part that moved is kept (the static base is unseen)")
         else:
             moving_pairs.remove(base)
