@@ -167,15 +167,25 @@ def test_labeler_is_deterministic_on_a_multi_part_scene(unposed_fridge):
     assert len(json.loads(runs[0])["motions"]) == 3
 
 
+def _without_seconds(document):
+    """The articulation document without its wall-clock times (every "seconds" key, any depth)."""
+    if isinstance(document, dict):
+        return {k: _without_seconds(v) for k, v in document.items() if k != "seconds"}
+    if isinstance(document, list):
+        return [_without_seconds(v) for v in document]
+    return document
+
+
 @requires_twins
-@pytest.mark.xfail(strict=False, reason="the unposed lift (view registration within a state, sparseart/align) "
-                                        "still gives slightly different clouds from run to run; the labeler "
-                                        "itself is deterministic (test above)")
 def test_same_multi_part_scene_gives_the_same_json(unposed_fridge):
-    """Determinism: an unposed multi-part scene run twice gives byte-identical articulation JSON."""
+    """Determinism: an unposed multi-part scene run twice gives byte-identical articulation JSON
+    (apart from the stage times). Registration of the unposed views runs open3d on one thread
+    (sparseart.geometry.o3d.serial): its threaded ICP sums differed in the last bits from run to run."""
     from sparseart.io.articulation import articulation_to_dict
     from sparseart.io.scene import load_scene
     from sparseart.pipeline import run
 
-    outputs = [json.dumps(articulation_to_dict(run(load_scene(unposed_fridge))), sort_keys=True) for _ in range(2)]
+    outputs = [json.dumps(_without_seconds(articulation_to_dict(run(load_scene(unposed_fridge)))), sort_keys=True)
+               for _ in range(2)]
     assert outputs[0] == outputs[1]
+    assert len(json.loads(outputs[0])["joints"]) == 2

@@ -7,6 +7,11 @@ cheap hypotheses leave the inlier fraction below ``fpfh_below``); each is refine
 open3d point-to-plane ICP with a Tukey robust kernel (coarse then fine). The best hypothesis has
 the highest symmetric inlier fraction; among near-ties the smallest rotation wins (real joints
 rarely exceed 180 deg and symmetric parts such as drawer fronts create flip ambiguities).
+
+Reproducible: subsamples come from ``numpy.random.default_rng(seed)``, open3d's RANSAC from its
+seeded generator, and every open3d registration call runs on one thread
+(:func:`sparseart.geometry.o3d.serial`), so its parallel sums cannot change the last bits from run
+to run: the same input gives the same transform, bit for bit.
 """
 from __future__ import annotations
 
@@ -15,9 +20,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sparseart.geometry.transforms import apply_transform, make_transform, rotation_angle
 from sparseart.geometry.clouds import median_spacing
+from sparseart.geometry.o3d import open3d, serial
 from sparseart.geometry.sampling import random_subset
+from sparseart.geometry.transforms import apply_transform, make_transform, rotation_angle
 
 
 @dataclass
@@ -62,9 +68,9 @@ def _hypotheses(source: np.ndarray, target: np.ndarray) -> list[tuple[str, np.nd
 
 
 def _o3d_cloud(points: np.ndarray, radius: float | None = None):
-    from sparseart.geometry.o3d import open3d
+    """open3d cloud of (N, 3) float64 points, with normals from a hybrid search of ``radius`` (30
+    neighbours at most; per point, so reproducible) when one is given. O(N log N)."""
     o3d = open3d()
-
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     if radius is not None:
         cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=radius, max_nn=30))
@@ -72,23 +78,23 @@ def _o3d_cloud(points: np.ndarray, radius: float | None = None):
 
 
 def _fpfh_hypothesis(source_cloud, target_cloud, voxel: float, seed: int) -> np.ndarray | None:
-    """open3d FPFH + RANSAC; None when it fails. Roughly O(N log N) for features + RANSAC."""
-    from sparseart.geometry.o3d import open3d
-    o3d = open3d()
-
-    reg = o3d.pipelines.registration
-    try:
-        o3d.utility.random.seed(seed)
-        param = o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=100)
-        source_feature = reg.compute_fpfh_feature(source_cloud, param)
-        target_feature = reg.compute_fpfh_feature(target_cloud, param)
-        result = reg.registration_ransac_based_on_feature_matching(
-            source_cloud, target_cloud, source_feature, target_feature, True, 1.5 * voxel,
-            reg.TransformationEstimationPointToPoint(False), 3,
-            [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
-            reg.RANSACConvergenceCriteria(5000, 0.999))
-    except RuntimeError:
-        return None
+    """open3d FPFH + RANSAC on one thread with a seeded generator (reproducible); None when it fails.
+    Roughly O(N log N) for features + RANSAC."""
+    with serial() as o3d:
+        reg = o3d.pipelines.registration
+        try:
+            o3d.utility.random.seed(seed)
+            param = o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=100)
+            source_feature = reg.compute_fpfh_feature(source_cloud, param)
+            target_feature = reg.compute_fpfh_feature(target_cloud, param)
+            result = reg.registration_ransac_based_on_feature_matching(
+                source_cloud, target_cloud, source_feature, target_feature, True, 1.5 * voxel,
+                reg.TransformationEstimationPointToPoint(False), 3,
+                [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+                 reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
+                reg.RANSACConvergenceCriteria(5000, 0.999))
+        except RuntimeError:
+            return None
     transform = np.asarray(result.transformation, dtype=np.float64)
     return transform if np.all(np.isfinite(transform)) and len(result.correspondence_set) >= 3 else None
 
@@ -99,21 +105,20 @@ def tukey_icp(source_cloud, target_cloud, init: np.ndarray, distances: tuple[flo
     ``distances`` in turn (point-to-point when the target has no normals).
 
     source_cloud / target_cloud: open3d point clouds (one frame, one unit); init: (4, 4) float64.
-    A non-finite step returns None with ``strict`` and is skipped otherwise. O(I N log M) for I
-    iterations over N source and M target points.
+    A non-finite step returns None with ``strict`` and is skipped otherwise. Runs open3d on one
+    thread (:func:`sparseart.geometry.o3d.serial`): the same input gives the same transform, bit for
+    bit. O(I N log M) for I iterations over N source and M target points.
     """
-    from sparseart.geometry.o3d import open3d
-    o3d = open3d()
-
-    reg = o3d.pipelines.registration
+    reg = open3d().pipelines.registration
     transform = init
     for distance in distances:
         if target_cloud.has_normals():
             estimation = reg.TransformationEstimationPointToPlane(reg.TukeyLoss(k=distance))
         else:
             estimation = reg.TransformationEstimationPointToPoint(False)
-        result = reg.registration_icp(source_cloud, target_cloud, distance, transform, estimation,
-                                      reg.ICPConvergenceCriteria(tolerance, tolerance, iterations))
+        with serial():
+            result = reg.registration_icp(source_cloud, target_cloud, distance, transform, estimation,
+                                          reg.ICPConvergenceCriteria(tolerance, tolerance, iterations))
         candidate = np.asarray(result.transformation, dtype=np.float64)
         if np.all(np.isfinite(candidate)):
             transform = candidate
@@ -204,8 +209,7 @@ def register_rigid(
     if init is None and use_fpfh and max(r["inlier_fraction"] for r in results) < fpfh_below \
             and min(len(source_sub), len(target_sub)) >= 30:
         # The cheap hypotheses did not explain the data: try features (about 0.2-1 s).
-        source_cloud.estimate_normals(__import__("sparseart.geometry.o3d", fromlist=["open3d"]).open3d().geometry.KDTreeSearchParamHybrid(
-            radius=4.0 * resolution, max_nn=30))
+        source_cloud.estimate_normals(open3d().geometry.KDTreeSearchParamHybrid(radius=4.0 * resolution, max_nn=30))
         fpfh = _fpfh_hypothesis(source_cloud, target_cloud, 2.0 * resolution, seed)
         if fpfh is not None:
             results.append(_refine("fpfh", fpfh, source_cloud, target_cloud, schedule, source_sub, target_sub,
@@ -238,10 +242,9 @@ def register_rigid(
 
 def _colored_polish(source_n, target_n, source_colors, target_colors, transform, inlier_distance,
                     resolution, target_tree, source_sub, target_sub, rng, max_points, fraction):
-    """open3d coloured ICP on subsamples; returns the better of the polished and given transform."""
-    from sparseart.geometry.o3d import open3d
+    """open3d coloured ICP (one thread, reproducible) on subsamples; returns the better of the
+    polished and given transform. O(I N log N) for I <= 30 iterations over N <= max_points."""
     o3d = open3d()
-
     reg = o3d.pipelines.registration
     try:
         pick_s = random_subset(source_n.shape[0], max_points, rng)
@@ -250,9 +253,10 @@ def _colored_polish(source_n, target_n, source_colors, target_colors, transform,
         target_cloud = _o3d_cloud(target_n[pick_t], radius=4.0 * resolution)
         source_cloud.colors = o3d.utility.Vector3dVector(np.asarray(source_colors, np.float64)[pick_s])
         target_cloud.colors = o3d.utility.Vector3dVector(np.asarray(target_colors, np.float64)[pick_t])
-        result = reg.registration_colored_icp(source_cloud, target_cloud, inlier_distance, transform,
-                                              reg.TransformationEstimationForColoredICP(),
-                                              reg.ICPConvergenceCriteria(1e-7, 1e-7, 30))
+        with serial():
+            result = reg.registration_colored_icp(source_cloud, target_cloud, inlier_distance, transform,
+                                                  reg.TransformationEstimationForColoredICP(),
+                                                  reg.ICPConvergenceCriteria(1e-7, 1e-7, 30))
         polished = np.asarray(result.transformation, dtype=np.float64)
     except RuntimeError:
         return transform
@@ -267,9 +271,9 @@ def icp_polish(source: np.ndarray, target: np.ndarray, init: np.ndarray, distanc
     unit) with :func:`tukey_icp` at 4, 2 and 1 times ``distance`` (voxel 1/60 of 50 x distance).
 
     Returns the polished (4, 4) source -> target, or None when it does not raise the share of points
-    within ``distance / 2`` (or the clouds are too small or the result is not finite). O(N log N).
+    within ``distance / 2`` (or the clouds are too small or the result is not finite). Reproducible:
+    the ICP runs on one thread and the fitness is an exact count. O(N log N).
     """
-    from sparseart.geometry.o3d import open3d
     o3d = open3d()
     reg = o3d.pipelines.registration
     voxel = distance / (60.0 * 0.02)
