@@ -93,25 +93,3 @@ def test_a_slide_in_a_turned_frame_stays_a_slide_once_the_frame_turn_is_known():
     assert error < 15.0                      # the frame's turn tilts the slide (lever ~0.7 over 0.2)
     # the stated sigma grows from the frame (nearest-surface misfits see ~40 % of a rigid turn)
     assert aware.diagnostics["uncertainty_before_frame"]["axis_deg"] < 1.0 < 0.25 * error < aware.uncertainty["axis_deg"]
-
-
-def _estimate(kind: str, residual: float, **diagnostics) -> "JointEstimate":
-    from sparseart.types import JointEstimate
-
-    return JointEstimate(type=kind, axis=np.array([1.0, 0.0, 0.0]), origin=np.zeros(3),
-                         angle=0.2 if kind == "revolute" else None, distance=None if kind == "revolute" else 0.2,
-                         transform=np.eye(4), uncertainty={}, residual=residual, confidence=1.0,
-                         diagnostics=diagnostics)
-
-
-def test_revolute_candidates_that_are_slides_in_disguise_give_way_to_a_slide():
-    from sparseart.joints.candidates import plausible_fits
-    from sparseart.joints.config import FitConfig
-
-    slide = _estimate("prismatic", 0.026)
-    flap = _estimate("revolute", 0.022, revolute_angle_z=9.0, revolute_pivot_factor=5.8)    # far pivot
-    frame_turn = _estimate("revolute", 0.021, revolute_angle_z=1.0, revolute_pivot_factor=0.5)  # insignificant
-    hinge = _estimate("revolute", 0.020, revolute_angle_z=60.0, revolute_pivot_factor=1.5)
-    config = FitConfig()
-    assert plausible_fits([slide, flap, frame_turn, hinge], config) == [slide, hinge]
-    assert plausible_fits([flap, frame_turn], config) == [flap, frame_turn]     # no slide to give way to

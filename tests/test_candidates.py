@@ -1,0 +1,67 @@
+"""Choosing among a part's candidate fits (sparseart.joints.candidates): revolute fits that are
+slides in disguise or half-turn twins of a symmetric part give way to the simpler motion."""
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from sparseart.joints.candidates import mirror_seed, plausible_fits, without_half_turns
+from sparseart.joints.config import FitConfig
+from sparseart.types import JointEstimate
+
+
+def _estimate(kind: str, residual: float, angle_deg: float = 11.5, **diagnostics) -> JointEstimate:
+    return JointEstimate(type=kind, axis=np.array([1.0, 0.0, 0.0]), origin=np.zeros(3),
+                         angle=np.radians(angle_deg) if kind == "revolute" else None, distance=None if kind == "revolute" else 0.2,
+                         transform=np.eye(4), uncertainty={}, residual=residual, confidence=1.0,
+                         diagnostics=diagnostics)
+
+
+def test_revolute_candidates_that_are_slides_in_disguise_give_way_to_a_slide():
+    slide = _estimate("prismatic", 0.026)
+    flap = _estimate("revolute", 0.022, revolute_angle_z=9.0, revolute_pivot_factor=5.8)    # far pivot
+    frame_turn = _estimate("revolute", 0.021, revolute_angle_z=1.0, revolute_pivot_factor=0.5)  # insignificant
+    hinge = _estimate("revolute", 0.020, revolute_angle_z=60.0, revolute_pivot_factor=1.5)
+    config = FitConfig()
+    assert plausible_fits([slide, flap, frame_turn, hinge], config) == [slide, hinge]
+    assert plausible_fits([flap, frame_turn], config) == [flap, frame_turn]     # no slide to give way to
+
+
+def test_a_half_turn_gives_way_to_a_comparable_smaller_motion():
+    slide = _estimate("prismatic", 0.0125)
+    spin = _estimate("revolute", 0.0124, angle_deg=179.8)
+    door = _estimate("revolute", 0.0124, angle_deg=96.0)
+    assert without_half_turns([spin, slide]) == [slide]
+    assert without_half_turns([spin, door]) == [door]
+    far = _estimate("prismatic", 0.03)                          # 2.4 x worse: not an alternative
+    assert without_half_turns([spin, far]) == [spin, far]
+    assert without_half_turns([door, slide]) == [door, slide]   # nothing turns that far
+
+
+def _drawer_box(count: int, rng: np.random.Generator) -> np.ndarray:
+    """Points on the surface of a 0.5 x 0.4 x 0.3 box centred at the origin (a drawer)."""
+    half = np.array([0.25, 0.2, 0.15])
+    points = rng.uniform(-1, 1, size=(count, 3)) * half
+    face = rng.integers(0, 3, size=count)
+    points[np.arange(count), face] = np.sign(rng.uniform(-1, 1, size=count)) * half[face]
+    return points
+
+
+def test_the_mirror_of_a_half_turned_box_is_its_slide():
+    """A box-shaped drawer (no slab) fitted as a 180 deg turn about x gets a mirror seed: the
+    same end pose reached with no turn, i.e. the slide; a 90 deg turn of the box gets none."""
+    rng = np.random.default_rng(5)
+    start = _drawer_box(4000, rng)
+    spin = np.eye(4)
+    spin[:3, :3] = Rotation.from_rotvec([np.pi, 0.0, 0.0]).as_matrix()
+    spin[:3, 3] = [0.3, 0.0, 0.0]
+    turned = JointEstimate(type="revolute", axis=np.array([1.0, 0.0, 0.0]), origin=np.zeros(3), angle=np.pi,
+                           distance=None, transform=spin, uncertainty={}, residual=0.01, confidence=1.0)
+    seed = mirror_seed(turned, start)
+    assert seed is not None
+    np.testing.assert_allclose(seed[:3, :3], np.eye(3), atol=1e-9)
+    np.testing.assert_allclose(seed[:3, 3], [0.3, 0.0, 0.0], atol=0.01)    # (about the sampled centroid)
+    quarter = JointEstimate(type="revolute", axis=np.array([1.0, 0.0, 0.0]), origin=np.zeros(3),
+                            angle=np.pi / 2, distance=None, transform=spin, uncertainty={}, residual=0.01,
+                            confidence=1.0)
+    assert mirror_seed(quarter, start) is None
