@@ -65,3 +65,35 @@ def test_the_mirror_of_a_half_turned_box_is_its_slide():
                             angle=np.pi / 2, distance=None, transform=spin, uncertainty={}, residual=0.01,
                             confidence=1.0)
     assert mirror_seed(quarter, start) is None
+
+
+def _pane(count: int, rng: np.random.Generator) -> np.ndarray:
+    """Points on a 0.6 x 0.4 x 0.02 pane centred at the origin (a window sash)."""
+    half = np.array([0.3, 0.2, 0.01])
+    points = rng.uniform(-1, 1, size=(count, 3)) * half
+    face = rng.integers(0, 3, size=count)
+    points[np.arange(count), face] = np.sign(rng.uniform(-1, 1, size=count)) * half[face]
+    return points
+
+
+def _turned_pane(angle_deg: float, pivot_radii: float):
+    """A pane turned by ``angle_deg`` about a vertical axis ``pivot_radii`` part radii away."""
+    from sparseart.joints.fit import fit_joint
+
+    rng = np.random.default_rng(9)
+    start = _pane(5000, rng)
+    radius = float(np.sqrt(np.mean(np.sum(start ** 2, axis=1))))
+    pivot = np.array([-pivot_radii * radius, 0.0, 0.0])
+    turn = Rotation.from_rotvec(np.radians(angle_deg) * np.array([0.0, 1.0, 0.0]))
+    end = turn.apply(_pane(5000, rng) - pivot) + pivot
+    noise = 2e-4
+    return fit_joint(start + rng.normal(scale=noise, size=start.shape), end + rng.normal(scale=noise, size=end.shape))
+
+
+def test_a_small_turn_about_a_far_pivot_is_a_slide_and_a_hinge_stays_a_hinge():
+    far = _turned_pane(4.0, 20.0)          # moves 0.35 radii-ish sideways, turning 4 deg
+    assert far.type == "prismatic"
+    assert "slide" in far.diagnostics["type_reason"]
+    near = _turned_pane(30.0, 2.0)
+    assert near.type == "revolute"
+    assert abs(np.degrees(near.angle) - 30.0) < 1.0

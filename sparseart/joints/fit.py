@@ -258,7 +258,8 @@ def _fit_models(part: PartData, joint_type: str, initial_transform: np.ndarray |
         fits["prismatic"] = fit_model(prismatic_init, part, config)
     clock.lap("optimise")
     if joint_type == "auto":
-        decision, type_info = choose_type(fits["revolute"], fits["prismatic"], config, frame_turn)
+        decision, type_info = choose_type(fits["revolute"], fits["prismatic"], config, frame_turn,
+                                          pivot_factor=_pivot_factor(fits["revolute"], part))
         chosen = decision.joint_type
         diagnostics.update(type_info)
     else:
