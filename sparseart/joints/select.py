@@ -93,7 +93,10 @@ def type_test_angle_sigma(revolute: ModelFit, frame_turn: float = 0.0) -> float:
     return float(np.hypot(np.sqrt(max(revolute.covariance[4, 4], 0.0)), frame_turn))
 
 
-FAR_PIVOT_MAX_TURN_DEG = 10.0  # a turn below this about a pivot beyond far_pivot_factor radii is a slide
+# A turn below this about a pivot beyond far_pivot_factor part radii is a slide. Spurious turns
+# measured on slides: 2.4 deg (warped frame), 5.3 deg (mislabelled points); a 10 deg turn about a
+# pivot 10 object sizes away (tests/test_stability.py::test_far_pivot) stays a rotation.
+FAR_PIVOT_MAX_TURN_DEG = 8.0
 
 
 def choose_type(revolute: ModelFit, prismatic: ModelFit, config: FitConfig,
