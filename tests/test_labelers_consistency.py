@@ -8,7 +8,7 @@ import pytest
 
 from sparseart.labelers.consistency import CONSISTENT, HIDDEN, VIOLATION, state_views, visible_fraction
 from sparseart.labelers.correspondence import (Assignment, Group, PairCandidate, _Screw, assign, manhattan_frame,
-                                               mask_agreement, prefer_small_turns)
+                                               distinct_by_masks, mask_agreement, prefer_small_turns)
 from sparseart.labelers.rules import _downsample
 from sparseart.types import Camera, Frame, LabelledCloud, Scene
 
@@ -75,8 +75,14 @@ def test_mask_ids_used_only_when_they_agree_across_images():
     end_groups = [Group([1], np.arange(3)), Group([2], np.arange(3)), Group([3], np.arange(3))]
     agreement = mask_agreement(start, end, start_groups, end_groups)
     assert agreement.tolist() == [[1, -1, -1], [-1, -1, 1], [-1, 1, -1]]
-    # Scrambled ids: one group carries two ids -> no agreement at all.
-    scrambled = _cloud({1: (0, 1), 65537: (1, 7), 2: (0, 2), 65538: (1, 2), 3: (0, 3)})
+    # One merged mask (a group with two ids): that group has no say, the others keep theirs, and
+    # the ids both states agree on mark distinct parts.
+    merged = _cloud({1: (0, 1), 65537: (1, 7), 2: (0, 2), 65538: (1, 2), 3: (0, 3)})
+    agreement = mask_agreement(merged, end, start_groups, end_groups)
+    assert agreement.tolist() == [[0, 0, 0], [-1, -1, 1], [-1, 1, -1]]
+    assert distinct_by_masks(start_groups[1], start_groups[2]) and not distinct_by_masks(start_groups[0], start_groups[1])
+    # Scrambled ids: most groups carry several ids -> no agreement at all.
+    scrambled = _cloud({1: (0, 1), 65537: (1, 7), 2: (0, 2), 65538: (1, 5), 3: (0, 3)})
     assert mask_agreement(scrambled, end, start_groups, end_groups) is None
 
 

@@ -421,25 +421,45 @@ class _Screw:
 
 def mask_agreement(start: LabelledCloud, end: LabelledCloud, start_groups: list[Group],
                    end_groups: list[Group]) -> np.ndarray | None:
-    """(G_s, G_e) +1 / -1 for equal / different mask ids, or None when the ids do not agree
-    across images: every group must carry one mask id, no two groups of a state may share one,
-    and at least half of each state's ids must occur in the other state. O(G)."""
-    def ids(cloud: LabelledCloud, groups: list[Group]) -> list[int] | None:
+    """(G_s, G_e) +1 / -1 for equal / different mask ids, 0 where a group carries several ids (a
+    mask merge), or None when the ids do not agree across images: at least two ids, half of each
+    state's single ids, and the ids of half of each state's groups must occur in both states. Judged per group, so one merged or split
+    mask (ragged real masks) no longer silences the ids of every other part (it did: a cabinet
+    with four look-alike drawers lost its only cue to which drawer is which). Also records on
+    every group its id when both states carry it (``Group.mask_ids``; empty otherwise): such ids
+    name distinct parts (:func:`distinct_by_masks`). O(G_s G_e)."""
+    def ids(cloud: LabelledCloud, groups: list[Group]) -> list[int | None]:
         result = []
         for group in groups:
             found = {cloud.segment_source[s][1] for s in group.segments if s in cloud.segment_source}
-            if len(found) != 1:
-                return None
-            result.append(next(iter(found)))
-        return result if len(set(result)) == len(result) else None
+            result.append(next(iter(found)) if len(found) == 1 else None)
+        return result
 
     start_ids, end_ids = ids(start, start_groups), ids(end, end_groups)
-    if not start_ids or not end_ids:
+    start_single = {i for i in start_ids if i is not None}
+    end_single = {i for i in end_ids if i is not None}
+    shared = start_single & end_single
+    if len(shared) < 2 or len(shared) < 0.5 * len(start_single) or len(shared) < 0.5 * len(end_single):
         return None
-    shared = set(start_ids) & set(end_ids)
-    if len(shared) < 0.5 * len(set(start_ids)) or len(shared) < 0.5 * len(set(end_ids)) or len(shared) < 2:
-        return None
-    return np.where(np.equal.outer(np.array(start_ids), np.array(end_ids)), 1.0, -1.0)
+    if any(sum(i in shared for i in found) < 0.5 * len(found) for found in (start_ids, end_ids)):
+        return None     # most groups carry several ids or unshared ones: ids do not name parts
+    for groups, found in ((start_groups, start_ids), (end_groups, end_ids)):
+        for group, mask_id in zip(groups, found):
+            group.mask_ids = frozenset({mask_id}) if mask_id in shared else frozenset()
+    agreement = np.zeros((len(start_ids), len(end_ids)))
+    for i, a in enumerate(start_ids):
+        for j, b in enumerate(end_ids):
+            if a is not None and b is not None:
+                agreement[i, j] = 1.0 if a == b else -1.0
+    return agreement
+
+
+def distinct_by_masks(a: Group, b: Group) -> bool:
+    """True when two groups of one state carry different mask ids that both states agree on
+    (:func:`mask_agreement`): the user's masks say they are different parts, whatever their
+    motions (two adjacent drawers pulled out by similar lengths). A piece split off by a new id in
+    one view has no agreed id and may still join its part."""
+    return bool(a.mask_ids) and bool(b.mask_ids) and a.mask_ids != b.mask_ids
 
 
 def score_pairs(ctx: PairContext, match_min_score: float, motion_hints: list[np.ndarray],

@@ -42,7 +42,7 @@ from sparseart.geometry.clouds import median_spacing, radius_components
 from sparseart.geometry.sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 from .consistency import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
-from .correspondence import (AMBIGUITY_MARGIN, Group, PairContext, apply, assign, mask_agreement,
+from .correspondence import (AMBIGUITY_MARGIN, Group, PairContext, apply, assign, distinct_by_masks, mask_agreement,
                              motion_size, pair_score, prefer_small_turns, score_pairs)
 
 STATIC_ANGLE_DEG = 1.0          # a matched pair moving less than this and ...
@@ -640,8 +640,11 @@ def _same_motion(start: LabelledCloud, end: LabelledCloud, start_groups: list[Gr
                  config: RuleLabelerConfig, rng: np.random.Generator) -> bool:
     """Do two moving pairs belong to one part? They must touch (in either state: pieces of one
     part are adjacent, identical sibling parts such as an oven's racks are not) and either pair's
-    motion must carry the other pair's start points onto its end points. O(S log N) per test."""
+    motion must carry the other pair's start points onto its end points; never when the masks name
+    them as different parts (:func:`~.correspondence.distinct_by_masks`). O(S log N) per test."""
     (ia, ja, _, _), (ib, jb, _, _) = pair_a, pair_b
+    if distinct_by_masks(start_groups[ia], start_groups[ib]) or distinct_by_masks(end_groups[ja], end_groups[jb]):
+        return False
     touching = False
     for cloud, groups, a, b in ((start, start_groups, ia, ib), (end, end_groups, ja, jb)):
         sample = cloud.points[_group_sample(groups[b], config.max_points_per_segment, rng)]
