@@ -165,3 +165,25 @@ def test_downsample_keeps_segments_and_maps_every_point():
     assert np.all(np.abs(work.points[mapping] - points) <= 0.1 * np.sqrt(3) + 1e-12)
     same, identity = _downsample(cloud, 0.0)
     assert same is cloud and np.array_equal(identity, np.arange(n))
+
+
+def test_a_small_part_seen_in_two_views_counts_with_both():
+    """The share floor applies to the merged group: a lever of 60 + 70 points in two views of a
+    cloud whose floor is 100 points (0.2 % of 50k) forms one group; one 60-point view alone does not."""
+    from sparseart.labelers.rules import RuleLabelerConfig, _merge_across_frames
+
+    rng = np.random.default_rng(0)
+    body = rng.uniform(-1, 1, size=(49870, 3))
+    lever = rng.uniform(-0.02, 0.02, size=(130, 3)) + [2.0, 0.0, 0.0]
+    points = np.concatenate([body, lever])
+    segment = np.concatenate([np.ones(49870, np.int64), np.full(60, 2), np.full(70, 65538)])
+    frame = np.concatenate([np.zeros(49870, np.int64), np.zeros(60, np.int64), np.ones(70, np.int64)])
+    cloud = LabelledCloud(state="end", points=points, colors=np.zeros_like(points), segment=segment,
+                          frame_index=frame, pixel_index=np.arange(len(points)), confidence=np.ones(len(points)),
+                          segment_source={1: (0, 1), 2: (0, 2), 65538: (1, 2)})
+    groups = _merge_across_frames(cloud, segment, 0.01, RuleLabelerConfig(), np.random.default_rng(0))
+    assert sorted(g.segments for g in groups) == [[1], [2, 65538]]
+    alone = segment.copy()
+    alone[-70:] = -1
+    groups = _merge_across_frames(cloud, alone, 0.01, RuleLabelerConfig(), np.random.default_rng(0))
+    assert [g.segments for g in groups] == [[1]]
