@@ -32,8 +32,8 @@ class _Grab:
 
         self.inner = RuleBasedLabeler()
 
-    def label(self, start, end, scene=None, aligned=True, motion_hints=None):
-        self.labels = self.inner.label(start, end, scene, aligned=aligned, motion_hints=motion_hints)
+    def label(self, start, end, scene=None, aligned=True, motion_hints=None, posed=None):
+        self.labels = self.inner.label(start, end, scene, aligned=aligned, motion_hints=motion_hints, posed=posed)
         self.start, self.end = start, end
         if aligned:
             raise _Stop()

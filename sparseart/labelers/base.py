@@ -19,13 +19,17 @@ class PartLabeler(Protocol):
     type per movable part (``PartSpec.joint_type``; the fitter then skips classification) and
     optionally a start->end rigid transform per movable part as evidence. ``motion_hints`` are
     (4, 4) start->end rigid motions (scene frame) that alignment found among the matches the
-    static part did not explain: candidate part motions a labeler may try (or ignore).
+    static part did not explain: candidate part motions a labeler may try (or ignore). ``posed``
+    says the two clouds are in a known common frame (cameras given, or a trusted feature alignment
+    of the states; None = the scene's cameras decide): a part that moved may then be kept even
+    when no static segment is seen in both states.
     """
 
     name: str
 
     def label(self, start: LabelledCloud, end: LabelledCloud, scene: Scene | None = None,
-              aligned: bool = True, motion_hints: list[np.ndarray] | None = None) -> PartLabels:
+              aligned: bool = True, motion_hints: list[np.ndarray] | None = None,
+              posed: bool | None = None) -> PartLabels:
         ...
 
 

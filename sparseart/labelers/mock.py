@@ -35,7 +35,8 @@ class MockLabeler:
         return mapping
 
     def label(self, start: LabelledCloud, end: LabelledCloud, scene: Scene | None = None,
-              aligned: bool = True, motion_hints: list[np.ndarray] | None = None) -> PartLabels:
+              aligned: bool = True, motion_hints: list[np.ndarray] | None = None,
+              posed: bool | None = None) -> PartLabels:
         part_ids = sorted(set(self.mask_to_part.values()) |
                           {p for table in self.per_image.values() for p in table.values()})
         parts = [PartSpec(id=p, role="static" if p == 0 else "movable",

@@ -128,7 +128,8 @@ class VlmLabeler:
         return f"VlmLabeler({self.client!r})"
 
     def label(self, start: LabelledCloud, end: LabelledCloud, scene: Scene | None = None,
-              aligned: bool = True, motion_hints: list[np.ndarray] | None = None) -> PartLabels:
+              aligned: bool = True, motion_hints: list[np.ndarray] | None = None,
+              posed: bool | None = None) -> PartLabels:
         """Label parts from the VLM's answers, or from the fallback labeler with a warning.
 
         O(P) requests for P pairs (3 per pair, plus re-asks), then O(N log N) KD-tree voting."""
@@ -153,7 +154,7 @@ class VlmLabeler:
                 from .rules import RuleBasedLabeler
 
                 fallback = RuleBasedLabeler()
-            labels = fallback.label(start, end, scene, aligned=aligned)
+            labels = fallback.label(start, end, scene, aligned=aligned, posed=posed)
             labels.warnings.insert(0, f"VLM labeler not used ({cause}); parts come from the "
                                       f"{fallback.name} labeler")
         return labels
