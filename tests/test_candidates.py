@@ -38,9 +38,9 @@ def test_a_half_turn_gives_way_to_a_comparable_smaller_motion():
     assert without_half_turns([door, slide]) == [door, slide]   # nothing turns that far
 
 
-def _drawer_box(count: int, rng: np.random.Generator) -> np.ndarray:
-    """Points on the surface of a 0.5 x 0.4 x 0.3 box centred at the origin (a drawer)."""
-    half = np.array([0.25, 0.2, 0.15])
+def _box(count: int, half: list[float], rng: np.random.Generator) -> np.ndarray:
+    """Points on the surface of a box of half-extents ``half`` centred at the origin."""
+    half = np.asarray(half, dtype=np.float64)
     points = rng.uniform(-1, 1, size=(count, 3)) * half
     face = rng.integers(0, 3, size=count)
     points[np.arange(count), face] = np.sign(rng.uniform(-1, 1, size=count)) * half[face]
@@ -51,7 +51,7 @@ def test_the_mirror_of_a_half_turned_box_is_its_slide():
     """A box-shaped drawer (no slab) fitted as a 180 deg turn about x gets a mirror seed: the
     same end pose reached with no turn, i.e. the slide; a 90 deg turn of the box gets none."""
     rng = np.random.default_rng(5)
-    start = _drawer_box(4000, rng)
+    start = _box(4000, [0.25, 0.2, 0.15], rng)      # a drawer
     spin = np.eye(4)
     spin[:3, :3] = Rotation.from_rotvec([np.pi, 0.0, 0.0]).as_matrix()
     spin[:3, 3] = [0.3, 0.0, 0.0]
@@ -67,13 +67,7 @@ def test_the_mirror_of_a_half_turned_box_is_its_slide():
     assert mirror_seed(quarter, start) is None
 
 
-def _pane(count: int, rng: np.random.Generator) -> np.ndarray:
-    """Points on a 0.6 x 0.4 x 0.02 pane centred at the origin (a window sash)."""
-    half = np.array([0.3, 0.2, 0.01])
-    points = rng.uniform(-1, 1, size=(count, 3)) * half
-    face = rng.integers(0, 3, size=count)
-    points[np.arange(count), face] = np.sign(rng.uniform(-1, 1, size=count)) * half[face]
-    return points
+PANE = [0.3, 0.2, 0.01]   # half-extents of a 0.6 x 0.4 x 0.02 window sash
 
 
 def _turned_pane(angle_deg: float, pivot_radii: float):
@@ -81,11 +75,11 @@ def _turned_pane(angle_deg: float, pivot_radii: float):
     from sparseart.joints.fit import fit_joint
 
     rng = np.random.default_rng(9)
-    start = _pane(5000, rng)
+    start = _box(5000, PANE, rng)
     radius = float(np.sqrt(np.mean(np.sum(start ** 2, axis=1))))
     pivot = np.array([-pivot_radii * radius, 0.0, 0.0])
     turn = Rotation.from_rotvec(np.radians(angle_deg) * np.array([0.0, 1.0, 0.0]))
-    end = turn.apply(_pane(5000, rng) - pivot) + pivot
+    end = turn.apply(_box(5000, PANE, rng) - pivot) + pivot
     noise = 2e-4
     return fit_joint(start + rng.normal(scale=noise, size=start.shape), end + rng.normal(scale=noise, size=end.shape))
 
