@@ -1,15 +1,15 @@
 """Outlier and fragment removal for one part's point set (any frame, any units).
 
 ``clean_part_points`` = statistical outlier removal (mean distance to the k nearest neighbours,
-robust threshold) followed by connected components of a radius graph (eps from the median point
-spacing), keeping every cluster that holds at least ``min_cluster_fraction`` of the largest one.
+robust threshold) followed by connected components of the k-NN graph's short edges (eps from the
+median point spacing), keeping every cluster that holds at least ``min_cluster_fraction`` of the
+largest one.
 Cost O(N log N) for the one k-NN query; the clusters reuse its neighbours (O(N k)).
 """
 from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
-
 
 
 def clean_part_points(
@@ -65,14 +65,14 @@ def _knn_components(distances: np.ndarray, index: np.ndarray, inlier: np.ndarray
     radius graph links except through a bridge of points whose k nearest all lie on one side,
     without the radius graph's second query (measured 0.08 s of 0.14 s at 40k points).
     distances / index: (N, k + 1) of ``cKDTree.query`` (column 0 = the point itself);
-    inlier: (N,) bool. O(N k)."""
+    inlier: (N,) bool. Every index is valid: the query has no distance bound and N > k. O(N k)."""
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
     rows = np.repeat(np.arange(len(index)), index.shape[1] - 1)
     cols = index[:, 1:].reshape(-1)
     near = distances[:, 1:].reshape(-1) < link
-    near &= inlier[rows] & inlier[np.minimum(cols, len(inlier) - 1)] & (cols < len(inlier))
+    near &= inlier[rows] & inlier[cols]
     renumber = np.cumsum(inlier) - 1                         # inlier row -> survivor index
     count = int(inlier.sum())
     graph = coo_matrix((np.ones(int(near.sum())), (renumber[rows[near]], renumber[cols[near]])), shape=(count, count))

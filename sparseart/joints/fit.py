@@ -77,6 +77,7 @@ from sparseart.joints.select import choose_type, type_test_angle_sigma
 from sparseart.joints.uncertainty import (
     add_frame_sigma,
     floor_covariance,
+    frame_turn,
     half_sample_covariance,
     prismatic_sigma,
     resample_covariance,
@@ -207,7 +208,7 @@ def fit_joint(
             _fitted.move_to_end(key)
     if fitted is None:
         fitted = _fit_models(part, joint_type, initial_transform, start_colors, end_colors, config, clock,
-                             frame_turn=_frame_turn(frame_error))
+                             turn=frame_turn(*frame_error) if frame_error is not None else 0.0)
         if key is not None:
             with _fitted_lock:
                 _fitted[key] = fitted
@@ -233,18 +234,11 @@ def fit_joint(
     return estimate
 
 
-def _frame_turn(frame_error: tuple[float, float] | None) -> float:
-    """The static frame's 1-sigma turn (rad) from ``(misfit, radius)``; 0 without one."""
-    if frame_error is None or frame_error[0] <= 0 or frame_error[1] <= 0:
-        return 0.0
-    return float(frame_error[0] / frame_error[1])
-
-
 def _fit_models(part: PartData, joint_type: str, initial_transform: np.ndarray | None,
                 start_colors: np.ndarray | None, end_colors: np.ndarray | None, config: FitConfig,
-                clock: _Clock, frame_turn: float = 0.0) -> _Fitted:
+                clock: _Clock, turn: float = 0.0) -> _Fitted:
     """Steps 2-4 of the module docstring: seed -> model fit(s) -> type choice (the rotation judged
-    against the frame's turn ``frame_turn``, rad)."""
+    against the static frame's turn ``turn``, rad)."""
     diagnostics: dict = {}
     initial, seed_info = initial_motion(part, initial_transform, start_colors, end_colors, config)
     revolute_init, prismatic_init, screw_info = initial_models(initial, part.start)
@@ -257,9 +251,15 @@ def _fit_models(part: PartData, joint_type: str, initial_transform: np.ndarray |
     if joint_type in ("auto", "prismatic"):
         fits["prismatic"] = fit_model(prismatic_init, part, config)
     clock.lap("optimise")
+    if "revolute" in fits:
+        revolute = fits["revolute"]
+        sigma = type_test_angle_sigma(revolute, turn)
+        diagnostics["revolute_pivot_factor"] = _pivot_factor(revolute, part)
+        diagnostics["revolute_angle_deg"] = float(np.degrees(abs(revolute.x[4])))
+        diagnostics["revolute_angle_z"] = float(abs(revolute.x[4]) / sigma) if sigma > 0 else float("inf")
     if joint_type == "auto":
-        decision, type_info = choose_type(fits["revolute"], fits["prismatic"], config, frame_turn,
-                                          pivot_factor=_pivot_factor(fits["revolute"], part))
+        decision, type_info = choose_type(fits["revolute"], fits["prismatic"], config, turn,
+                                          pivot_factor=diagnostics["revolute_pivot_factor"])
         chosen = decision.joint_type
         diagnostics.update(type_info)
     else:
@@ -267,11 +267,6 @@ def _fit_models(part: PartData, joint_type: str, initial_transform: np.ndarray |
     for kind, fit in fits.items():
         diagnostics[f"{kind}_condition"] = fit.condition
         diagnostics[f"{kind}_iterations"] = dict(fit.iterations)
-    if "revolute" in fits:
-        diagnostics["revolute_pivot_factor"] = _pivot_factor(fits["revolute"], part)
-        diagnostics["revolute_angle_deg"] = float(np.degrees(abs(fits["revolute"].x[4])))
-        sigma = type_test_angle_sigma(fits["revolute"], frame_turn)
-        diagnostics["revolute_angle_z"] = float(abs(fits["revolute"].x[4]) / sigma) if sigma > 0 else float("inf")
     clock.lap("select")
     return _Fitted(chosen, fits, diagnostics)
 

@@ -39,7 +39,7 @@ from sparseart.joints.optimise import ModelFit, Problem, one_to_one_pairs, pair_
 from sparseart.joints.part import MIN_POINTS, Sample
 
 __all__ = ["UNCERTAINTY_FLOOR", "add_frame_sigma", "axis_sigma_deg", "block_jackknife_covariance", "floor_covariance",
-           "frame_misfit",
+           "frame_misfit", "frame_turn",
            "half_sample_covariance", "prismatic_sigma", "resample_covariance", "revolute_sigma", "spatial_blocks"]
 
 
@@ -224,6 +224,12 @@ def frame_misfit(static_start: np.ndarray, static_end: np.ndarray, seed: int = 0
     return misfit, radius
 
 
+def frame_turn(misfit: float, radius: float) -> float:
+    """The static frame's 1-sigma turn (rad) from :func:`frame_misfit`'s ``(misfit, radius)``
+    (scene units): misfit / radius; 0 when either is 0 (the states agree, or too few points)."""
+    return float(misfit / radius) if misfit > 0 and radius > 0 else 0.0
+
+
 def add_frame_sigma(uncertainty: dict[str, float], misfit: float, radius: float, part_radius: float,
                     distance: float | None = None) -> dict[str, float]:
     """The stated 1-sigma with the static frame's own error added in quadrature.
@@ -238,9 +244,9 @@ def add_frame_sigma(uncertainty: dict[str, float], misfit: float, radius: float,
     depth warps, scale errors), so not divided by any point count. Returns a new dict; unchanged
     when misfit is 0.
     """
-    if misfit <= 0 or radius <= 0:
+    turn = frame_turn(misfit, radius)
+    if turn == 0.0:
         return dict(uncertainty)
-    turn = misfit / radius
     out = dict(uncertainty)
     tilt = turn if not distance or distance <= 0 else max(turn, float(np.arctan2(turn * radius, distance)))
     out["axis_deg"] = float(np.hypot(out.get("axis_deg", 0.0), np.degrees(tilt)))

@@ -423,9 +423,10 @@ def mask_agreement(start: LabelledCloud, end: LabelledCloud, start_groups: list[
                    end_groups: list[Group]) -> np.ndarray | None:
     """(G_s, G_e) +1 / -1 for equal / different mask ids, 0 where a group carries several ids (a
     mask merge), or None when the ids do not agree across images: at least two ids, half of each
-    state's single ids, and the ids of half of each state's groups must occur in both states. Judged per group, so one merged or split
-    mask (ragged real masks) no longer silences the ids of every other part (it did: a cabinet
-    with four look-alike drawers lost its only cue to which drawer is which). Also records on
+    state's single ids, and the ids of half of each state's groups must occur in both states.
+    Judged per group, so one merged or split mask (ragged real masks) no longer silences the ids of
+    every other part (it did: a cabinet with four look-alike drawers lost its only cue to which
+    drawer is which). Also records on
     every group its id when both states carry it (``Group.mask_ids``; empty otherwise): such ids
     name distinct parts (:func:`distinct_by_masks`). O(G_s G_e)."""
     def ids(cloud: LabelledCloud, groups: list[Group]) -> list[int | None]:

@@ -42,8 +42,8 @@ from sparseart.geometry.clouds import median_spacing, radius_components
 from sparseart.geometry.sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 from .consistency import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
-from .correspondence import (AMBIGUITY_MARGIN, Group, PairContext, apply, assign, distinct_by_masks, mask_agreement,
-                             motion_size, pair_score, prefer_small_turns, score_pairs)
+from .correspondence import (AMBIGUITY_MARGIN, Group, PairContext, apply, assign, distinct_by_masks,
+                             mask_agreement, motion_size, pair_score, prefer_small_turns, score_pairs)
 
 STATIC_ANGLE_DEG = 1.0          # a matched pair moving less than this and ...
 STATIC_SHIFT_RADII = 1.5        # ... less than this many inlier radii is static
