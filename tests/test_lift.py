@@ -5,7 +5,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sparseart.lift.labels import SEGMENT_STRIDE, build_labelled_cloud, mask_boundary
+from sparseart.lift.labels import SEGMENT_STRIDE, build_labelled_cloud, mask_boundary, without_ambiguous_boundaries
 from sparseart.lift.rgbd import flying_pixel_mask, pointmap_from_depth
 from sparseart.types import Camera, Frame
 
@@ -56,14 +56,14 @@ def test_invalid_and_flying_pixels() -> None:
 
 
 def test_label_transfer_row_major() -> None:
-    depth = np.ones((6, 8))
-    mask = np.zeros((6, 8), np.int64)
-    mask[1:5, 1:4] = 3
-    mask[1:5, 4:7] = 9
+    depth = np.ones((12, 16))
+    mask = np.zeros((12, 16), np.int64)
+    mask[1:11, 1:8] = 3
+    mask[1:11, 8:15] = 9
     frame = _frame(depth, K, np.eye(4), mask=mask, index=1)
     pointmap = pointmap_from_depth(frame, reject_flying_pixels=False)
     cloud = build_labelled_cloud("start", [frame], [pointmap], drop_mask_boundaries=False)
-    rows, cols = cloud.pixel_index // 8, cloud.pixel_index % 8
+    rows, cols = cloud.pixel_index // 16, cloud.pixel_index % 16
     np.testing.assert_array_equal(cloud.colors[:, 0] * 255, cols)
     np.testing.assert_array_equal(cloud.colors[:, 1] * 255, rows)
     expected = np.where(mask[rows, cols] > 0, SEGMENT_STRIDE + mask[rows, cols], -1)
@@ -73,6 +73,25 @@ def test_label_transfer_row_major() -> None:
     boundary = mask_boundary(mask, depth)[rows, cols]
     assert np.all(cleaned.segment[boundary] == -1)
     assert np.all(cleaned.segment[~boundary] == expected[~boundary])
+
+
+def test_thin_segment_keeps_its_boundary_pixels() -> None:
+    """A 2-px wire in front of a body at a smeared (similar) depth: every wire pixel touches the
+    body's label, so the boundary rule alone would erase the wire; it keeps its points, while the
+    body (a solid segment) still loses its ambiguous rim."""
+    depth = np.ones((20, 20))
+    mask = np.ones((20, 20), np.int64)
+    mask[3:17, 9:11] = 2                      # the wire
+    depth[3:17, 9:11] = 0.98                  # smeared: within the 5 % similarity band
+    frame = _frame(depth, K, np.eye(4), mask=mask)
+    pointmap = pointmap_from_depth(frame, reject_flying_pixels=False)
+    cloud = build_labelled_cloud("start", [frame], [pointmap], drop_mask_boundaries=True)
+    rows, cols = cloud.pixel_index // 20, cloud.pixel_index % 20
+    wire = mask[rows, cols] == 2
+    assert np.all(cloud.segment[wire] == 2)               # all 28 wire points keep their id
+    rim = (mask[rows, cols] == 1) & ((cols == 8) | (cols == 11)) & (rows >= 3) & (rows < 17)
+    assert rim.any() and np.all(cloud.segment[rim] == -1)  # the body's pixels next to it do not
+    assert np.all(without_ambiguous_boundaries(mask, depth, np.ones_like(depth, bool), keep_share=0.0)[3:17, 9:11] == 0)
 
 
 def test_segments_of_two_frames_never_collide() -> None:
