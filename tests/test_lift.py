@@ -94,6 +94,30 @@ def test_thin_segment_keeps_its_boundary_pixels() -> None:
     assert np.all(without_ambiguous_boundaries(mask, depth, np.ones_like(depth, bool), keep_share=0.0)[3:17, 9:11] == 0)
 
 
+def test_see_through_mask_keeps_only_its_front_layer() -> None:
+    """A rack's (ragged) mask also covers the oven wall seen beside its wires, and smeared depth
+    puts the wires close to that wall: the thin segment keeps its pixels, but those well behind
+    the segment's own nearest depth lose the id; the wires keep it. A solid segment with the same
+    depth step (a drawer front with a recess) is left alone."""
+    depth = np.full((24, 24), 1.25)
+    mask = np.ones((24, 24), np.int64)
+    wires = np.zeros((24, 24), bool)
+    wires[4:20, 4:20:5] = True                # 1-px vertical wires, smeared towards the wall
+    depth[wires] = 1.19                       # 4.8 % in front: within the similar-depth band
+    for column in range(4, 20, 5):
+        mask[4:20, column - 1:column + 2] = 2  # the mask: each wire and a pixel either side
+    # 29 % of this short rack survives the boundary rule: thin at a share of 0.5
+    kept = without_ambiguous_boundaries(mask, depth, np.ones_like(depth, bool), keep_share=0.5)
+    assert np.all(kept[wires] == 2)
+    assert np.all(kept[(mask == 2) & ~wires] == 0)
+    solid = np.ones((24, 24), np.int64)
+    solid[4:20, 4:20] = 2
+    recessed = np.where(solid == 2, 1.0, 1.25)
+    recessed[10:14, 10:14] = 1.1              # a recess inside a solid segment: not see-through
+    kept = without_ambiguous_boundaries(solid, recessed, np.ones_like(recessed, bool))
+    assert np.all(kept[10:14, 10:14] == 2)
+
+
 def test_segments_of_two_frames_never_collide() -> None:
     depth = np.ones((4, 4))
     mask = np.ones((4, 4), np.int64)

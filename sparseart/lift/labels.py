@@ -5,6 +5,7 @@ its points in that order, so the label of point ``k`` is ``mask.reshape(-1)[k]``
 """
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from ..types import Frame, LabelledCloud, Pointmap
@@ -67,7 +68,33 @@ def without_ambiguous_boundaries(mask: np.ndarray, depth: np.ndarray | None, val
     kept = np.bincount(ids[valid & ~boundary], minlength=bins)
     thin = (kept < keep_share * total) & (total > 0)
     thin[0] = False
-    return np.where(boundary & ~thin[ids], 0, mask)
+    cleaned = np.where(boundary & ~thin[ids], 0, mask)
+    if depth is not None and thin.any():
+        cleaned = np.where(thin[ids] & seen_through(ids, depth, valid), 0, cleaned)
+    return cleaned
+
+
+# A mask of a see-through part (a wire rack, a grille) also covers what is seen between its wires.
+# Pixels of a thin segment this far (relative) behind the nearest depth of the same segment within
+# SEE_THROUGH_WINDOW px belong to the layer behind it. Measured on a smeared, ragged-masked oven
+# rack: the wire pixels lie a median 2-3.5 % behind that front, the pixels seen through 6-8 %.
+SEE_THROUGH_GAP = 0.045
+SEE_THROUGH_WINDOW = 7
+
+
+def seen_through(ids: np.ndarray, depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(H, W) bool: valid pixels more than ``SEE_THROUGH_GAP`` (relative) behind the nearest valid
+    pixel of the same id within a ``SEE_THROUGH_WINDOW`` square. ids (H, W) int64; depth (H, W)
+    metres. O(H W x ids present)."""
+    behind = np.zeros(ids.shape, dtype=bool)
+    kernel = np.ones((SEE_THROUGH_WINDOW, SEE_THROUGH_WINDOW), np.uint8)
+    for value in np.unique(ids[valid]):
+        if value == 0:
+            continue
+        own = valid & (ids == value) & (depth > 0)
+        front = cv2.erode(np.where(own, depth, np.inf).astype(np.float32), kernel).astype(np.float64)
+        behind |= own & (depth > (1.0 + SEE_THROUGH_GAP) * front)
+    return behind
 
 
 def segment_id(frame_index: int, mask_id: int) -> int:
