@@ -189,3 +189,32 @@ def test_same_multi_part_scene_gives_the_same_json(unposed_fridge):
                for _ in range(2)]
     assert outputs[0] == outputs[1]
     assert len(json.loads(outputs[0])["joints"]) == 2
+
+
+def test_a_small_turn_about_a_far_pivot_is_charged_as_a_slide():
+    """A 6.9 deg turn whose pivot lies ~7 part radii away carries a drawer a drawer width sideways
+    (measured: twin drawers side by side paired that way without masks): it counts as a slide,
+    along the drawer's displacement, so the slot charge sees it; a door's turn of the same angle
+    about its own edge, and larger turns, are no slides."""
+    from scipy.spatial.transform import Rotation
+
+    from sparseart.labelers.correspondence import slide_direction
+
+    rng = np.random.default_rng(0)
+    drawer = rng.uniform([-0.1, -0.05, -0.05], [0.1, 0.05, 0.05], (500, 3))   # radius ~0.07
+
+    def turn(degrees: float, pivot: np.ndarray) -> np.ndarray:
+        transform = np.eye(4)
+        transform[:3, :3] = Rotation.from_rotvec(np.radians(degrees) * np.array([0.0, 1.0, 0.0])).as_matrix()
+        transform[:3, 3] = pivot - transform[:3, :3] @ pivot
+        return transform
+
+    far = turn(6.9, np.array([1.3, 0.0, 0.0]))
+    direction = slide_direction(far, drawer)
+    moved = far[:3, :3] @ drawer.mean(axis=0) + far[:3, 3] - drawer.mean(axis=0)
+    np.testing.assert_allclose(direction, moved / np.linalg.norm(moved), atol=1e-12)
+    assert slide_direction(turn(6.9, np.array([0.1, 0.0, 0.05])), drawer) is None   # a door on its edge
+    assert slide_direction(turn(20.0, np.array([1.3, 0.0, 0.0])), drawer) is None   # a real turn
+    shift = np.eye(4)
+    shift[:3, 3] = [0.0, 0.0, 0.2]
+    np.testing.assert_allclose(slide_direction(shift, drawer), [0.0, 0.0, 1.0])

@@ -377,16 +377,42 @@ def slide_sine_points(ctx: PairContext, transform: np.ndarray, start_points: np.
                       end_common: np.ndarray | None = None) -> float:
     """:func:`slide_sine` for a part given by its points in both states (and the points of each
     state that the motion carries onto the other: the commonly seen surface; all when None)."""
-    angle, shift = motion_size(transform)
-    if angle >= SLIDE_MAX_DEG or shift <= 0:
+    direction = slide_direction(transform, start_points)
+    if direction is None:
         return 0.0
     normal = ctx.outward_normal(start_points, end_points,
                                 start_points if start_common is None else start_common,
                                 end_points if end_common is None else end_common)
     if normal is None:
         return 0.0
-    cosine = abs(float(transform[:3, 3] / shift @ normal))
+    cosine = abs(float(direction @ normal))
     return float(np.sqrt(max(0.0, 1.0 - cosine * cosine)))
+
+
+FAR_PIVOT_MAX_TURN_DEG = 8.0  # a motion turning less than this ...
+FAR_PIVOT_RADII = 5.0         # ... about a pivot farther than this many part radii is a slide too
+
+
+def slide_direction(transform: np.ndarray, start_points: np.ndarray) -> np.ndarray | None:
+    """(3,) unit direction of a motion that is a slide, else None: turning less than
+    ``SLIDE_MAX_DEG``, or less than ``FAR_PIVOT_MAX_TURN_DEG`` about a pivot more than
+    ``FAR_PIVOT_RADII`` part radii away (then the part's centroid displacement; the joint fitter's
+    type test reads such a motion as a slide as well). Why: twin drawers side by side were paired
+    by a 6.9 deg "turn" that carried one drawer a whole drawer width sideways into its neighbour's
+    place, and escaped the slot charge. start_points (N, 3) the part at start. O(N)."""
+    angle, shift = motion_size(transform)
+    if angle < SLIDE_MAX_DEG:
+        return transform[:3, 3] / shift if shift > 0 else None
+    if angle >= FAR_PIVOT_MAX_TURN_DEG or len(start_points) == 0:
+        return None
+    centre = start_points.mean(axis=0)
+    displacement = transform[:3, :3] @ centre + transform[:3, 3] - centre
+    length = float(np.linalg.norm(displacement))
+    radius = float(np.sqrt(((start_points - centre) ** 2).sum(axis=1).mean()))
+    pivot_distance = length / (2.0 * np.sin(np.radians(angle) / 2.0))
+    if pivot_distance <= FAR_PIVOT_RADII * radius:
+        return None
+    return displacement / length
 
 
 class _Screw:
