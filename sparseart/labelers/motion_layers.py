@@ -35,8 +35,8 @@ from scipy.spatial import cKDTree
 
 from ..geometry.clouds import radius_components
 from .consistency import HIDDEN, VIOLATION, StateViews
-from .correspondence import (PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, blocked_step_share, motion_size,
-                             refine_icp, register_sets, slide_sine_points)
+from .correspondence import (PHYSICS_WEIGHT, SLIDE_MAX_DEG, SLIDE_WEIGHT, PairContext, apply, blocked_step_share, motion_size,
+                             refine_icp, register_sets, slide_direction, slide_sine_points)
 
 HIDDEN_CREDIT = 0.5
 TIGHTEN_POINTS = 600
@@ -230,6 +230,10 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
         transform = ratings.tighten(transform)
         if not ratings.known(transform):
             ratings.add(transform)
+    for shifted in _twin_slides(ratings, min_points):
+        shifted = ratings.tighten(shifted)
+        if not ratings.known(shifted):
+            ratings.add(shifted)
     for k in range(len(ratings.motions)):
         for mirrored in _slab_mirrors(ratings, k):
             mirrored = ratings.tighten(mirrored)
@@ -257,6 +261,55 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
     layers = [layer for layer in layers if len(layer.start) >= floor_s and len(layer.end) >= floor_e]
     layers.sort(key=lambda layer: -(len(layer.start) + len(layer.end)))
     return layers, notes
+
+
+TWIN_SLIDE_SAME_DEG = 5.0   # slide directions closer than this are one direction for the length search
+
+
+def _twin_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
+    """Slides along each rated slide's direction by the other lengths the moved points support.
+
+    Twin drawers share their slot direction but not their travel, and when they touch they come
+    in one moved piece, whose registration blends their motions (measured: 4 drawers side by side
+    without masks, the piece of two drawers registered to a slide 0.04 object units sideways that
+    carried neither). For every distinct direction u of a rated motion turning less than
+    ``SLIDE_MAX_DEG``, each start moved point p votes for the lengths d at which p + d u lands on
+    an end moved point; lengths with at least ``min_points`` votes that are local maxima (other
+    than the rated slides' own) become pure translations d u. Lengths are searched from 2 hit
+    radii to the diameter in steps of half a hit radius: O(U (D / r) S log E) for U directions,
+    S start and E end moved points."""
+    directions: list[np.ndarray] = []
+    lengths: list[float] = []
+    for transform in ratings.motions:
+        angle, shift = motion_size(transform)
+        if angle >= SLIDE_MAX_DEG or shift <= 0:
+            continue
+        u = transform[:3, 3] / shift
+        if any(np.degrees(np.arccos(min(1.0, abs(float(u @ v))))) < TWIN_SLIDE_SAME_DEG for v in directions):
+            continue
+        directions.append(u)
+        lengths.append(shift)
+    if not directions:
+        return []
+    points = ratings.start.points[ratings.start_moved[~ratings.start_unseen]]
+    if len(points) < min_points:
+        return []
+    points = points[:: max(1, len(points) // 3000)]
+    scale = max(1, len(ratings.start_moved[~ratings.start_unseen]) // 3000)
+    step = 0.5 * ratings.radius
+    grid = np.arange(2.0 * ratings.radius, ratings.context.diameter, step)
+    found = []
+    for u in directions:
+        votes = np.array([(ratings.end_tree.query(points + d * u, k=1, distance_upper_bound=ratings.radius)[0]
+                           < ratings.radius).sum() * scale for d in grid])
+        for i in range(len(grid)):
+            low, high = max(0, i - 2), min(len(grid), i + 3)
+            if votes[i] < min_points or votes[i] < votes[low:high].max() or (i > low and votes[i] == votes[i - 1]):
+                continue
+            transform = np.eye(4)
+            transform[:3, 3] = grid[i] * u
+            found.append(transform)
+    return found
 
 
 def _objective(ratings: _Ratings, chosen: list[int], price: float) -> float:
@@ -363,7 +416,8 @@ def _merge_agreeing(ratings: _Ratings, layers: list[MotionLayer]) -> list[Motion
                 big, small = layers[a], layers[b]
                 if not _touching(ratings, big, small, radius):
                     continue
-                if _hit_share(ratings, big.transform, small.start, small.end, radius) >= MERGE_HIT_SHARE:
+                if (_hit_share(ratings, big.transform, small.start, small.end, radius) >= MERGE_HIT_SHARE
+                        and not _own_motion(ratings, big, small)):
                     start_idx, end_idx = np.union1d(big.start, small.start), np.union1d(big.end, small.end)
                     # The merged layer follows whichever motion lays all of its points best.
                     keep = max((big, small), key=lambda layer: _hit_share(ratings, layer.transform, start_idx,
@@ -375,6 +429,24 @@ def _merge_agreeing(ratings: _Ratings, layers: list[MotionLayer]) -> list[Motion
             if merged:
                 break
     return layers
+
+
+OWN_MOTION_MARGIN = 0.25    # a layer laying this much more of its points than a neighbour's motion is its own part
+
+
+def _own_motion(ratings: _Ratings, big: MotionLayer, small: MotionLayer) -> bool:
+    """Does ``small`` slide by its own motion? True when both slide and its motion lays at least
+    ``OWN_MOTION_MARGIN`` more of its points (tight hit radius) than ``big``'s does. One part seen
+    as patches is laid about as well by either patch's motion; twin drawers touching side by side,
+    pulled out by 0.218 and 0.245 object units, are not (their travels differ by ~1 inlier radius,
+    so the full-radius test alone merged them). Slides only: the patches of one turning lid
+    differ more far from their hinge (a box lid came out as 3 parts); slides as
+    :func:`~.correspondence.slide_direction` reads them (small turns about far pivots too). O(P log N)."""
+    if any(slide_direction(layer.transform, ratings.start.points[layer.start]) is None for layer in (big, small)):
+        return False
+    own = _hit_share(ratings, small.transform, small.start, small.end, ratings.radius)
+    other = _hit_share(ratings, big.transform, small.start, small.end, ratings.radius)
+    return own - other >= OWN_MOTION_MARGIN
 
 
 def _touching(ratings: _Ratings, a: MotionLayer, b: MotionLayer, radius: float) -> bool:
