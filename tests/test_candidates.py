@@ -91,3 +91,17 @@ def test_a_small_turn_about_a_far_pivot_is_a_slide_and_a_hinge_stays_a_hinge():
     near = _turned_pane(30.0, 2.0)
     assert near.type == "revolute"
     assert abs(np.degrees(near.angle) - 30.0) < 1.0
+
+
+def test_a_half_turn_is_flagged_and_lowers_the_confidence():
+    """A fit turning 178 deg (a fridge door seen edge-on, matched flipped) warns and halves the
+    confidence; the real laptop's 96 deg does not."""
+    from sparseart.joints.reliability import WarningCode, confidence, revolute_warnings
+
+    def codes(degrees: float) -> set:
+        return {w.code for w in revolute_warnings(np.radians(degrees), 0.5, 1.0, 0.0, 0.1, 0.0, 2.0, 5.0)}
+
+    assert WarningCode.HALF_TURN in codes(178.0) and WarningCode.HALF_TURN in codes(-178.0)
+    assert WarningCode.HALF_TURN not in codes(96.0)
+    flagged = revolute_warnings(np.radians(178.0), 0.5, 1.0, 0.0, 0.1, 0.0, 2.0, 5.0)
+    assert confidence(1.0, 0.0, 1.0, flagged) == 0.5 * confidence(1.0, 0.0, 1.0, [])

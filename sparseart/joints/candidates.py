@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from sparseart.geometry.clouds import median_spacing
 from sparseart.geometry.transforms import apply_transform, axis_angle_deg, make_transform
 from sparseart.joints.fit import FitConfig, fit_joint
+from sparseart.joints.reliability import HALF_TURN_DEG
 from sparseart.joints.uncertainty import frame_misfit
 from sparseart.types import JointEstimate, LabelledCloud, PartLabels, PartResult
 
@@ -330,7 +331,6 @@ def plausible_fits(candidates: list[JointEstimate], config: FitConfig) -> list[J
     return kept
 
 
-HALF_TURN_DEG = 150.0  # a revolute fit turning more than this on a symmetric part is a half-turn twin
 
 
 def without_half_turns(candidates: list[JointEstimate]) -> list[JointEstimate]:

@@ -27,6 +27,9 @@ MAX_RELATIVE_SIGMA = 0.25    # stated angle / distance 1-sigma above this fracti
 COLLINEAR_RATIO = 1e-4       # second / first principal variance below this: a thin rod
 PLANAR_RATIO = 1e-4          # third / first principal variance below this: a flat part
 CONFIDENCE_RESIDUAL = 0.1    # confidence halves when the residual is this fraction of the part radius
+HALF_TURN_DEG = 150.0        # a turn above this is most likely a symmetric part's flipped match: real
+                             # joints of furniture and appliances turn less (the 21 rendered joints
+                             # 37-75 deg, the real laptop 96 deg)
 
 
 class WarningCode(Enum):
@@ -43,6 +46,7 @@ class WarningCode(Enum):
     TINY_SLIDE = "tiny_slide"                  # a slide comparable with the noise
     OUTLIERS = "outliers"
     TURN_AS_SLIDE = "turn_as_slide"            # a prismatic answer to a motion that turns
+    HALF_TURN = "half_turn"                    # a turn > HALF_TURN_DEG: likely a symmetric part's flip
     LARGE_UNCERTAINTY = "large_uncertainty"
 
     @property
@@ -52,7 +56,7 @@ class WarningCode(Enum):
 
 _LOWERS_CONFIDENCE = {WarningCode.ILL_CONDITIONED, WarningCode.SMALL_ANGLE, WarningCode.FAR_PIVOT,
                       WarningCode.TINY_SLIDE, WarningCode.OUTLIERS, WarningCode.TURN_AS_SLIDE,
-                      WarningCode.LARGE_UNCERTAINTY}
+                      WarningCode.LARGE_UNCERTAINTY, WarningCode.HALF_TURN}
 
 
 @dataclass(frozen=True)
@@ -78,13 +82,17 @@ def shape_warnings(principal_variances: np.ndarray, condition: float) -> list[Fi
 
 def revolute_warnings(angle: float, pivot_distance: float, part_radius: float, slide: float, slide_limit: float,
                       unit_slide: float, small_angle_deg: float, far_pivot_factor: float) -> list[FitWarning]:
-    """angle (rad) below ``small_angle_deg``; pivot farther than ``far_pivot_factor`` part radii
+    """angle (rad) below ``small_angle_deg`` or above ``HALF_TURN_DEG``; pivot farther than ``far_pivot_factor`` part radii
     (normalised units); |slide| along the axis above ``slide_limit`` (normalised; ``unit_slide``:
     the same in input units, for the message)."""
     found = []
     if np.degrees(angle) < small_angle_deg:
         found.append(FitWarning(WarningCode.SMALL_ANGLE, f"rotation of {np.degrees(angle):.3g} deg < "
                                                          f"{small_angle_deg} deg: axis poorly defined"))
+    if np.degrees(abs(angle)) > HALF_TURN_DEG:
+        found.append(FitWarning(WarningCode.HALF_TURN, f"turn of {np.degrees(abs(angle)):.3g} deg > {HALF_TURN_DEG:.0f} "
+                                                       "deg: most likely a symmetric part matched flipped (a door "
+                                                       "seen edge-on?); axis and angle may be wrong"))
     if pivot_distance > far_pivot_factor * part_radius:
         found.append(FitWarning(WarningCode.FAR_PIVOT, f"pivot is {pivot_distance / part_radius:.3g} x the part "
                                                        "radius away: revolute vs prismatic ambiguous"))
