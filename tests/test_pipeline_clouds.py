@@ -134,7 +134,7 @@ def test_static_axis_seeds_point_along_the_slide() -> None:
 def test_rival_slides_widen_the_axis_uncertainty() -> None:
     """A slide that another direction >= 10 deg away explains within +10 % residual gets its axis
     sigma raised to that angle and a warning; close rivals or worse rivals change nothing."""
-    from sparseart.joints.candidates import widen_for_rivals
+    from sparseart.joints.candidates import widen_for_rival_slides
     from sparseart.types import JointEstimate
 
     def slide(degrees: float, residual: float) -> JointEstimate:
@@ -144,32 +144,11 @@ def test_rival_slides_widen_the_axis_uncertainty() -> None:
                              residual=residual, confidence=1.0)
 
     chosen = slide(0.0, 0.0100)
-    widen_for_rivals(chosen, [chosen, slide(4.0, 0.0101), slide(30.0, 0.0120)])
+    widen_for_rival_slides(chosen, [chosen, slide(4.0, 0.0101), slide(30.0, 0.0120)])
     assert chosen.uncertainty["axis_deg"] == 0.7 and not chosen.warnings
-    widen_for_rivals(chosen, [chosen, slide(18.0, 0.0105)])
+    widen_for_rival_slides(chosen, [chosen, slide(18.0, 0.0105)])
     assert chosen.uncertainty["axis_deg"] == pytest.approx(18.0)
     assert "18.0 deg away fits almost as well (residual +5 %)" in chosen.warnings[0]
-
-
-def test_rival_hinges_widen_the_axis_uncertainty() -> None:
-    """The same for turns (a near-symmetric lever): a hinge axis 20 deg away within +4 % residual
-    raises the sigma to 20 deg; a half-turn twin or a slide never counts as a rival hinge."""
-    from sparseart.joints.candidates import widen_for_rivals
-    from sparseart.types import JointEstimate
-
-    def turn(degrees: float, residual: float, angle_deg: float = 60.0, kind: str = "revolute") -> JointEstimate:
-        axis = np.array([0.0, np.sin(np.radians(degrees)), np.cos(np.radians(degrees))])
-        return JointEstimate(type=kind, axis=axis, origin=np.zeros(3), angle=np.radians(angle_deg),
-                             distance=None, transform=np.eye(4),
-                             uncertainty={"axis_deg": 2.7, "origin": 0.01, "angle_deg": 1.0},
-                             residual=residual, confidence=1.0)
-
-    chosen = turn(0.0, 0.0140)
-    widen_for_rivals(chosen, [chosen, turn(40.0, 0.0141, angle_deg=178.0), turn(35.0, 0.0141, kind="prismatic")])
-    assert chosen.uncertainty["axis_deg"] == 2.7 and not chosen.warnings
-    widen_for_rivals(chosen, [chosen, turn(20.0, 0.01456)])
-    assert chosen.uncertainty["axis_deg"] == pytest.approx(20.0)
-    assert "another hinge axis 20.0 deg away" in chosen.warnings[0]
 
 
 def test_fallback_base_prefers_the_pair_that_staying_put_explains() -> None:

@@ -128,47 +128,44 @@ def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndar
             seeded.warnings.append("slide re-fitted from the static part's axis: the first fit was a local "
                                    "minimum (repeated structure?)")
             candidates.append(seeded)
-    plausible = plausible_fits(candidates, config or FitConfig())
-    chosen = choose_fit(without_half_turns(plausible), part_start,
+    chosen = choose_fit(without_half_turns(plausible_fits(candidates, config or FitConfig())), part_start,
                         support_points if support_points is not None else static_points)
     # The chosen fit again with its full sigma: fit_joint remembers the model fits of these
     # arrays, seed and type, so only the uncertainty step runs (the point estimate is the same).
     kind, seed, own = calls[id(chosen)]
     complete = fit_joint(part_start, part_end, joint_type=kind, initial_transform=seed, **colours)
     complete.warnings.extend(chosen.warnings[own:])     # what the choice among candidates added
-    widen_for_rivals(complete, [c for c in plausible + slide_fits if c is not chosen])
+    widen_for_rival_slides(complete, [c for c in candidates + slide_fits if c is not chosen])
     return complete
 
 
-RIVAL_RESIDUAL_RATIO = 1.1  # another fit of the same type this close to the chosen one is a rival ...
+RIVAL_SLIDE_RESIDUAL_RATIO = 1.1  # another slide fitting this close to the chosen one is a rival ...
 
 
-RIVAL_MIN_DEG = 10.0        # ... when its axis is at least this far off
+RIVAL_SLIDE_MIN_DEG = 10.0        # ... when its axis is at least this far off
 
 
-def widen_for_rivals(chosen: JointEstimate, fits: list[JointEstimate]) -> None:
-    """A fit whose data another fit of the same type with an axis >= ``RIVAL_MIN_DEG`` away
-    explains about as well (residual within ``RIVAL_RESIDUAL_RATIO``; half-turn twins excluded)
-    is ambiguous, whatever its local curvature says: its axis sigma is raised to the angle between
-    them, with a warning. Measured: an oven rack whose chosen slide was 18 deg off had a rival
-    18 deg away at +5 % residual and a local sigma of 0.7 deg; a faucet lever under realistic
-    noise (a near-cylinder: its spin about itself is unobservable) had revolute fits 29-45 deg off
-    within 4 % of each other and a stated sigma of 2.7 deg. Modifies ``chosen`` in place. O(F)."""
-    rivals = [f for f in fits if f is not chosen and f.type == chosen.type and not _half_turn(f)
-              and f.residual <= RIVAL_RESIDUAL_RATIO * chosen.residual]
+def widen_for_rival_slides(chosen: JointEstimate, fits: list[JointEstimate]) -> None:
+    """A prismatic fit whose data a slide >= ``RIVAL_SLIDE_MIN_DEG`` away explains about as well
+    (residual within ``RIVAL_SLIDE_RESIDUAL_RATIO``) is ambiguous, whatever its local curvature
+    says: its axis sigma is raised to the angle between them, with a warning. Measured: an
+    oven rack whose chosen slide was 18 deg off had a rival 18 deg away at +5 % residual and a
+    local sigma of 0.7 deg. Modifies ``chosen`` in place. O(F)."""
+    if chosen.type != "prismatic":
+        return
+    rivals = [f for f in fits if f is not chosen and f.type == "prismatic"
+              and f.residual <= RIVAL_SLIDE_RESIDUAL_RATIO * chosen.residual]
     if not rivals:
         return
     angles = [axis_angle_deg(f.axis, chosen.axis) for f in rivals]
     widest = max(angles)
-    if widest < RIVAL_MIN_DEG:
+    if widest < RIVAL_SLIDE_MIN_DEG:
         return
     rival = rivals[int(np.argmax(angles))]
-    what = "slide direction" if chosen.type == "prismatic" else "hinge axis"
     chosen.uncertainty["axis_deg"] = max(float(chosen.uncertainty.get("axis_deg", 0.0)), widest)
-    chosen.warnings.append(f"another {what} {widest:.1f} deg away fits almost as well (residual "
+    chosen.warnings.append(f"another slide direction {widest:.1f} deg away fits almost as well (residual "
                            f"{100.0 * (rival.residual / chosen.residual - 1.0):+.0f} %): the axis is "
-                           f"ambiguous (symmetric or repeated structure?); axis uncertainty raised to "
-                           f"{widest:.1f} deg")
+                           f"ambiguous (repeated structure?); axis uncertainty raised to {widest:.1f} deg")
 
 
 STATIC_AXIS_SEED_MIN_DEG = 2.0  # a static principal axis this close to the fitted slide adds nothing
