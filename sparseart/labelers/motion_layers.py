@@ -274,12 +274,11 @@ def _twin_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
     without masks, the piece of two drawers registered to a slide 0.04 object units sideways that
     carried neither). For every distinct direction u of a rated motion turning less than
     ``SLIDE_MAX_DEG``, each start moved point p votes for the lengths d at which p + d u lands on
-    an end moved point; lengths with at least ``min_points`` votes that are local maxima (other
-    than the rated slides' own) become pure translations d u. Lengths are searched from 2 hit
+    an end moved point; lengths with at least ``min_points`` votes that are local maxima become
+    pure translations d u (the caller drops those equal to a rated motion). Lengths are searched from 2 hit
     radii to the diameter in steps of half a hit radius: O(U (D / r) S log E) for U directions,
     S start and E end moved points."""
     directions: list[np.ndarray] = []
-    lengths: list[float] = []
     for transform in ratings.motions:
         angle, shift = motion_size(transform)
         if angle >= SLIDE_MAX_DEG or shift <= 0:
@@ -288,7 +287,6 @@ def _twin_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
         if any(np.degrees(np.arccos(min(1.0, abs(float(u @ v))))) < TWIN_SLIDE_SAME_DEG for v in directions):
             continue
         directions.append(u)
-        lengths.append(shift)
     if not directions:
         return []
     points = ratings.start.points[ratings.start_moved[~ratings.start_unseen]]
