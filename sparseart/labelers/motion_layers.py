@@ -310,25 +310,31 @@ def _twin_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
     return found
 
 
-def _objective(ratings: _Ratings, chosen: list[int], price: float) -> float:
+def _objective(seen: np.ndarray, charges: np.ndarray, chosen: list[int], price: float) -> float:
     """Whole-object explanation of a motion set: the sum over moved points that were seen (unseen
-    points have no vote: they join a chosen motion afterwards) of their best rating (>= 0), minus ``price`` per motion and, per motion, its physics charge (blocked share and
-    slide sine, weighted as in the pair cost) times the points it claims."""
+    points have no vote: they join a chosen motion afterwards) of their best rating (>= 0), minus
+    ``price`` per motion and, per motion, its physics charge (``charges``: blocked share and slide
+    sine, weighted as in the pair cost) times the points it claims. seen: (M, S) ratings of the
+    M motions on the S seen moved points. O(len(chosen) S)."""
     if not chosen:
         return 0.0
-    table = np.stack([ratings.rows[k] for k in chosen])[:, ~ratings.unseen]
-    best = table.max(axis=0)
+    table = seen[chosen]
     owner = table.argmax(axis=0)
+    best = np.take_along_axis(table, owner[None], axis=0)[0]
     value = float(np.clip(best, 0.0, None).sum()) - price * len(chosen)
+    claimed = np.bincount(owner[best > 0.0], minlength=len(chosen))
     for slot, k in enumerate(chosen):
-        claimed = float(np.sum((owner == slot) & (best > 0.0)))
-        value -= (PHYSICS_WEIGHT * ratings.physics[k] + SLIDE_WEIGHT * ratings.slides[k]) * claimed
+        value -= charges[k] * float(claimed[slot])
     return value
 
 
 def _select(ratings: _Ratings, price: float) -> list[int]:
     """Greedy forward selection, then single removals and swaps while the objective improves.
-    Ties go to the earlier motion (the assigned pairs' motions come first)."""
+    Ties go to the earlier motion (the assigned pairs' motions come first). The ratings of the
+    seen points are gathered once per call (they were re-gathered for each of the ~10^3 trial
+    sets: 12 of 48 s on an unposed 4-drawer cabinet without masks)."""
+    seen = np.stack(ratings.rows)[:, ~ratings.unseen] if ratings.rows else np.zeros((0, 0))
+    charges = np.array([PHYSICS_WEIGHT * p + SLIDE_WEIGHT * q for p, q in zip(ratings.physics, ratings.slides)])
     chosen: list[int] = []
     value = 0.0
     pool = list(range(len(ratings.motions)))
@@ -337,7 +343,7 @@ def _select(ratings: _Ratings, price: float) -> list[int]:
         for k in pool:
             if k in chosen:
                 continue
-            trial = _objective(ratings, chosen + [k], price)
+            trial = _objective(seen, charges, chosen + [k], price)
             if trial > best_value + 1e-9:
                 best, best_value = k, trial
         if best is None:
@@ -350,7 +356,7 @@ def _select(ratings: _Ratings, price: float) -> list[int]:
         for slot in range(len(chosen)):
             for k in [None, *[m for m in pool if m not in chosen]]:
                 trial_set = chosen[:slot] + chosen[slot + 1:] + ([k] if k is not None else [])
-                trial = _objective(ratings, trial_set, price)
+                trial = _objective(seen, charges, trial_set, price)
                 if trial > value + 1e-9:
                     chosen, value, improved = trial_set, trial, True
                     break
