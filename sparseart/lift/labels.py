@@ -60,7 +60,8 @@ def without_ambiguous_boundaries(mask: np.ndarray, depth: np.ndarray | None, val
                                  keep_share: float = THIN_SEGMENT_KEEP_SHARE) -> np.ndarray:
     """(H, W) mask with its ambiguous boundary pixels (:func:`mask_boundary`) set to 0, except in
     thin segments: an id whose valid pixels would fall below ``keep_share`` of their count keeps
-    them all. mask (H, W) int; depth (H, W) metres or None; valid (H, W) bool. O(H W)."""
+    them all, but only its front layer (:func:`seen_through` pixels set to 0). mask (H, W) int;
+    depth (H, W) metres or None; valid (H, W) bool. O(H W (1 + thin ids))."""
     boundary = mask_boundary(mask, depth)
     ids = np.asarray(mask, dtype=np.int64)
     bins = int(ids.max()) + 1 if ids.size else 1
@@ -70,7 +71,7 @@ def without_ambiguous_boundaries(mask: np.ndarray, depth: np.ndarray | None, val
     thin[0] = False
     cleaned = np.where(boundary & ~thin[ids], 0, mask)
     if depth is not None and thin.any():
-        cleaned = np.where(thin[ids] & seen_through(ids, depth, valid), 0, cleaned)
+        cleaned = np.where(seen_through(ids, depth, valid, np.flatnonzero(thin)), 0, cleaned)
     return cleaned
 
 
@@ -82,15 +83,13 @@ SEE_THROUGH_GAP = 0.045
 SEE_THROUGH_WINDOW = 7
 
 
-def seen_through(ids: np.ndarray, depth: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """(H, W) bool: valid pixels more than ``SEE_THROUGH_GAP`` (relative) behind the nearest valid
-    pixel of the same id within a ``SEE_THROUGH_WINDOW`` square. ids (H, W) int64; depth (H, W)
-    metres. O(H W x ids present)."""
+def seen_through(ids: np.ndarray, depth: np.ndarray, valid: np.ndarray, which: np.ndarray) -> np.ndarray:
+    """(H, W) bool: valid pixels of the ids ``which`` more than ``SEE_THROUGH_GAP`` (relative)
+    behind the nearest valid pixel of the same id within a ``SEE_THROUGH_WINDOW`` square.
+    ids (H, W) int64; depth (H, W) metres; valid (H, W) bool. O(H W x len(which))."""
     behind = np.zeros(ids.shape, dtype=bool)
     kernel = np.ones((SEE_THROUGH_WINDOW, SEE_THROUGH_WINDOW), np.uint8)
-    for value in np.unique(ids[valid]):
-        if value == 0:
-            continue
+    for value in which:
         own = valid & (ids == value) & (depth > 0)
         front = cv2.erode(np.where(own, depth, np.inf).astype(np.float32), kernel).astype(np.float64)
         behind |= own & (depth > (1.0 + SEE_THROUGH_GAP) * front)
