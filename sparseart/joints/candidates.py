@@ -328,8 +328,6 @@ def plausible_fits(candidates: list[JointEstimate], config: FitConfig) -> list[J
     return kept
 
 
-
-
 def without_half_turns(candidates: list[JointEstimate]) -> list[JointEstimate]:
     """The candidates without the revolute fits that turn by more than ``HALF_TURN_DEG``, when
     one of the others explains the data alike (residual within ``COMPARABLE_RESIDUAL_RATIO`` of

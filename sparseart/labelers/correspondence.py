@@ -34,6 +34,8 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from ..joints.config import FitConfig
+from ..joints.select import FAR_PIVOT_MAX_TURN_DEG
 from ..types import LabelledCloud
 from .consistency import StateViews, visible_fraction
 
@@ -389,15 +391,12 @@ def slide_sine_points(ctx: PairContext, transform: np.ndarray, start_points: np.
     return float(np.sqrt(max(0.0, 1.0 - cosine * cosine)))
 
 
-FAR_PIVOT_MAX_TURN_DEG = 8.0  # a motion turning less than this ...
-FAR_PIVOT_RADII = 5.0         # ... about a pivot farther than this many part radii is a slide too
-
-
 def slide_direction(transform: np.ndarray, start_points: np.ndarray) -> np.ndarray | None:
     """(3,) unit direction of a motion that is a slide, else None: turning less than
     ``SLIDE_MAX_DEG``, or less than ``FAR_PIVOT_MAX_TURN_DEG`` about a pivot more than
-    ``FAR_PIVOT_RADII`` part radii away (then the part's centroid displacement; the joint fitter's
-    type test reads such a motion as a slide as well). Why: twin drawers side by side were paired
+    ``FitConfig.far_pivot_factor`` part radii away (then the part's centroid displacement): the
+    joint fitter's type test (:func:`~sparseart.joints.select.choose_type`) reads such a motion as a
+    slide, with the same two bounds. Why: twin drawers side by side were paired
     by a 6.9 deg "turn" that carried one drawer a whole drawer width sideways into its neighbour's
     place, and escaped the slot charge. start_points (N, 3) the part at start. O(N)."""
     angle, shift = motion_size(transform)
@@ -410,7 +409,7 @@ def slide_direction(transform: np.ndarray, start_points: np.ndarray) -> np.ndarr
     length = float(np.linalg.norm(displacement))
     radius = float(np.sqrt(((start_points - centre) ** 2).sum(axis=1).mean()))
     pivot_distance = length / (2.0 * np.sin(np.radians(angle) / 2.0))
-    if pivot_distance <= FAR_PIVOT_RADII * radius:
+    if pivot_distance <= FitConfig.far_pivot_factor * radius:
         return None
     return displacement / length
 
