@@ -187,3 +187,49 @@ def test_a_small_part_seen_in_two_views_counts_with_both():
     alone[-70:] = -1
     groups = _merge_across_frames(cloud, alone, 0.01, RuleLabelerConfig(), np.random.default_rng(0))
     assert [g.segments for g in groups] == [[1]]
+
+
+def _two_view_cloud(state: str, parts: list[tuple[np.ndarray, int, int]]) -> LabelledCloud:
+    """A cloud of (points, frame, mask id) pieces; segment id = frame * 65536 + mask id."""
+    points = np.concatenate([p for p, _, _ in parts])
+    segment = np.concatenate([np.full(len(p), f * 65536 + i, np.int64) for p, f, i in parts])
+    frame = np.concatenate([np.full(len(p), f, np.int64) for p, f, _ in parts])
+    return LabelledCloud(state=state, points=points, colors=np.zeros_like(points), segment=segment,
+                         frame_index=frame, pixel_index=np.arange(len(points)), confidence=np.ones(len(points)),
+                         segment_source={f * 65536 + i: (f, i) for _, f, i in parts})
+
+
+def test_named_mask_ids_keep_touching_parts_apart_and_unpaired():
+    """Masks whose ids agree across images name parts. A ragged mask of one rack that bleeds over
+    its touching neighbour in another view merges the two racks by overlap when the ids are not
+    trusted; with named ids they stay two groups. A rack too small to form a group in one state
+    still owns its id: no other rack's group may pair with it. Ids drawn per image name nothing."""
+    from sparseart.labelers.correspondence import named_mask_ids, pair_cost
+    from sparseart.labelers.rules import RuleLabelerConfig, _merge_across_frames
+
+    rng = np.random.default_rng(0)
+
+    def slab(x0: float, n: int = 400) -> np.ndarray:
+        return np.column_stack([rng.uniform(x0, x0 + 1.0, n), rng.uniform(0, 1, n), np.zeros(n)])
+
+    start = _two_view_cloud("start", [(slab(-2.0), 0, 1), (slab(-2.0), 1, 1), (slab(0.0), 0, 2),
+                                      (slab(0.6), 1, 3), (slab(3.0, 10), 0, 4)])
+    end = _two_view_cloud("end", [(slab(-2.0), 0, 1), (slab(0.0), 0, 2), (slab(1.0), 1, 3), (slab(3.0), 0, 4)])
+    named = named_mask_ids(start, end)
+    assert named == {1, 2, 3, 4}
+    config, radius = RuleLabelerConfig(), 0.05
+    merged = _merge_across_frames(start, start.segment, radius, config, np.random.default_rng(0))
+    assert [2, 65539] in [g.segments for g in merged]
+    start_groups = _merge_across_frames(start, start.segment, radius, config, np.random.default_rng(0), named)
+    assert sorted(g.segments for g in start_groups) == [[1, 65537], [2], [65539]]
+    end_groups = _merge_across_frames(end, end.segment, radius, config, np.random.default_rng(0), named)
+    mask_agreement(start, end, start_groups, end_groups, named)
+    rack_3 = next(g for g in start_groups if g.segments == [65539])
+    rack_4_end = next(g for g in end_groups if g.segments == [4])
+    assert rack_4_end.mask_ids == {4}       # id 4 has no start group (10 points), yet it is named
+    assert distinct_by_masks(rack_3, rack_4_end)
+    conflict = PairCandidate(0, 0, np.eye(4), score=0.9, identity=0.1, named_conflict=True)
+    assert pair_cost(conflict, 1.0, 0.3) >= 1e3
+    # Ids drawn per image (scrambled): nothing is named.
+    scrambled = _two_view_cloud("end", [(slab(-2.0), 0, 17), (slab(0.0), 0, 404), (slab(1.0), 1, 3)])
+    assert named_mask_ids(start, scrambled) == frozenset()

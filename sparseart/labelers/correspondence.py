@@ -83,7 +83,9 @@ class PairCandidate:
     transform: (4, 4) start->end; score: appearance in [0, 1]; identity: the "stayed put" score;
     travel: median displacement of the start samples (labeler units); physics: blocked-step share
     in [0, 1]; slide: for slides, the sine between the slide and the outward normal of the face of
-    the static body the part sits at (0 = straight out of its slot); mask: +1 equal mask ids, -1 different, 0 unknown; how: "identity" | "registration" | "hint".
+    the static body the part sits at (0 = straight out of its slot); mask: +1 equal mask ids, -1 different, 0 unknown; how: "identity" | "registration" | "hint";
+    named_conflict: both groups carry an id that both states agree on (``Group.mask_ids``) and
+    the ids differ -- the user's masks say these are different parts, so the pair is not allowed.
     """
 
     i: int
@@ -96,6 +98,7 @@ class PairCandidate:
     slide: float = 0.0
     mask: float = 0.0
     how: str = "identity"
+    named_conflict: bool = False
 
 
 @dataclass
@@ -444,16 +447,48 @@ class _Screw:
         return transform
 
 
+NAMED_ID_SHARE = 0.5        # ids occurring in both states must cover this share of each state's mask points
+
+
+def named_mask_ids(start: LabelledCloud, end: LabelledCloud) -> frozenset[int]:
+    """The mask ids that name parts across images, before any grouping: the ids occurring in both
+    states, when there are at least two of them and their points make up at least
+    ``NAMED_ID_SHARE`` of each state's mask points; empty otherwise (ids drawn per image, as in
+    scrambled or per-image segmenter masks, rarely repeat, and never cover half the points).
+    Two segments with different such ids are never merged (:func:`~.rules._merge_across_frames`:
+    touching parts stay apart), and two groups with different such ids are never paired
+    (:func:`pair_cost`), even when a part is too small to form a group in one state. O(N)."""
+    def id_counts(cloud: LabelledCloud) -> dict[int, int]:
+        segments, counts = np.unique(cloud.segment[cloud.segment >= 0], return_counts=True)
+        found: dict[int, int] = {}
+        for segment, count in zip(segments.tolist(), counts.tolist()):
+            if segment in cloud.segment_source:
+                mask_id = cloud.segment_source[segment][1]
+                found[mask_id] = found.get(mask_id, 0) + count
+        return found
+
+    start_ids, end_ids = id_counts(start), id_counts(end)
+    shared = set(start_ids) & set(end_ids)
+    if len(shared) < 2:
+        return frozenset()
+    for found in (start_ids, end_ids):
+        if sum(found[i] for i in shared) < NAMED_ID_SHARE * max(sum(found.values()), 1):
+            return frozenset()
+    return frozenset(int(i) for i in shared)
+
+
 def mask_agreement(start: LabelledCloud, end: LabelledCloud, start_groups: list[Group],
-                   end_groups: list[Group]) -> np.ndarray | None:
+                   end_groups: list[Group], named: frozenset[int] = frozenset()) -> np.ndarray | None:
     """(G_s, G_e) +1 / -1 for equal / different mask ids, 0 where a group carries several ids (a
     mask merge), or None when the ids do not agree across images: at least two ids, half of each
     state's single ids, and the ids of half of each state's groups must occur in both states.
     Judged per group, so one merged or split mask (ragged real masks) no longer silences the ids of
     every other part (it did: a cabinet with four look-alike drawers lost its only cue to which
     drawer is which). Also records on
-    every group its id when both states carry it (``Group.mask_ids``; empty otherwise): such ids
-    name distinct parts (:func:`distinct_by_masks`). O(G_s G_e)."""
+    every group its id when both states carry it, in a group or among the points (``named``, from
+    :func:`named_mask_ids`: a part too small to form a group in one state still owns its id)
+    (``Group.mask_ids``; empty otherwise): such ids name distinct parts (:func:`distinct_by_masks`).
+    O(G_s G_e)."""
     def ids(cloud: LabelledCloud, groups: list[Group]) -> list[int | None]:
         result = []
         for group in groups:
@@ -471,7 +506,7 @@ def mask_agreement(start: LabelledCloud, end: LabelledCloud, start_groups: list[
         return None     # most groups carry several ids or unshared ones: ids do not name parts
     for groups, found in ((start_groups, start_ids), (end_groups, end_ids)):
         for group, mask_id in zip(groups, found):
-            group.mask_ids = frozenset({mask_id}) if mask_id in shared else frozenset()
+            group.mask_ids = frozenset({mask_id}) if mask_id in shared | named else frozenset()
     agreement = np.zeros((len(start_ids), len(end_ids)))
     for i, a in enumerate(start_ids):
         for j, b in enumerate(end_ids):
@@ -553,7 +588,8 @@ def score_pairs(ctx: PairContext, match_min_score: float, motion_hints: list[np.
         source = ctx.start.points[ctx.start_samples[i]]
         travel = float(np.median(np.linalg.norm(apply(best_transform, source) - source, axis=1))) if len(source) else 0.0
         candidate = PairCandidate(i, j, best_transform, float(best_score), float(stay), travel=travel,
-                                  mask=float(mask_ids[i, j]) if mask_ids is not None else 0.0, how=how)
+                                  mask=float(mask_ids[i, j]) if mask_ids is not None else 0.0, how=how,
+                                  named_conflict=distinct_by_masks(ctx.start_groups[i], ctx.end_groups[j]))
         if how != "identity" and best_score >= match_min_score:
             candidate.physics = blocked_share(ctx, i, j, best_transform)
             candidate.slide = slide_sine(ctx, i, j, best_transform)
@@ -712,7 +748,7 @@ def _box_slides(source: np.ndarray, target: np.ndarray, frame: np.ndarray | None
 
 def pair_cost(candidate: PairCandidate, diameter: float, match_min_score: float) -> float:
     """Hungarian cost of one pair (module doc); ``UNMATCHED`` below the minimum score."""
-    if candidate.score < match_min_score:
+    if candidate.score < match_min_score or candidate.named_conflict:
         return UNMATCHED
     return (-candidate.score + TRAVEL_PENALTY * candidate.travel / max(diameter, 1e-12)
             + PHYSICS_WEIGHT * candidate.physics + SLIDE_WEIGHT * candidate.slide - MASK_ID_WEIGHT * candidate.mask)
