@@ -48,6 +48,11 @@ def test_grid_is_one_factor_at_a_time():
                 knob = setting.name[len("knob-"):]
                 assert {k for k, v in setting.realism.levels().items() if v} == {knob}
                 assert setting.realism.levels()[knob] == 1.0 and setting.posed == (knob == "pose_noise")
+            elif setting.name == "robot-1view":   # a calibrated static head camera: the real captures' shape
+                changed = {k for k, v in vars(setting).items() if k != "name" and v != getattr(realistic, k)}
+                assert changed == {"views", "posed", "use_masks", "realism"}, changed
+                assert setting.views == 1 and setting.posed and not setting.use_masks
+                assert setting.realism == realistic.realism.with_levels(pose_noise=0.0)
             else:
                 changed = {k for k, v in vars(setting).items() if k != "name" and v != getattr(realistic, k)}
                 assert changed <= {"views"} or changed <= {"refine"}, (setting.name, changed)
@@ -60,7 +65,7 @@ def test_grid_is_one_factor_at_a_time():
     assert ("refine" in names) != any(r.startswith("refine") for r in skipped)  # run or skipped with a reason
     assert ("realistic-xfeat" in names) != any(r.startswith("*-xfeat") for r in skipped)
     assert grid_settings(quick=True)[0] == [BenchSetting(name="default")]
-    assert {"realistic", "realistic-1view", "knob-jpeg", "knob-occluder"} <= set(names)
+    assert {"realistic", "realistic-1view", "robot-1view", "knob-jpeg", "knob-occluder"} <= set(names)
 
 
 def test_settings_are_selected_by_pattern():

@@ -67,7 +67,9 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
     two factors at once), the built-in image segmenter instead of the masks, the fit's ``fast`` and
     ``best`` budgets (error against seconds per budget), refinement.
     Realistic renders (:mod:`sparseart.datasets.realism`, every knob at level 1, unposed) --
-    ``realistic`` (3 views), ``realistic-1view``, ``realistic+refine``, and ``knob-NAME``: one knob
+    ``realistic`` (3 views), ``realistic-1view``, ``realistic+refine``, ``robot-1view`` (what a
+    robot's calibrated static head camera gives: posed, one view per state from the same pose, no
+    masks, every other knob at level 1 -- the shape of the real captures), and ``knob-NAME``: one knob
     alone at level 1 on the unposed 3-view default (posed for ``knob-pose_noise``, whose error
     lives in the written poses), so the table shows which error hurts most.
     ``quick``: the default setting only.
@@ -89,6 +91,8 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
                 replace(base, segmenter="builtin", name="builtin-segmenter"),
                 replace(base, budget="fast", name="budget-fast"), replace(base, budget="best", name="budget-best"),
                 realistic, replace(realistic, views=1, name="realistic-1view"),
+                replace(base, views=1, use_masks=False, realism=PRESETS["realistic"].with_levels(pose_noise=0.0),
+                        name="robot-1view"),
                 *(replace(base, posed=knob == "pose_noise", realism=Realism(**{knob: 1.0}), name=f"knob-{knob}")
                   for knob in KNOBS)]
     skipped = []
