@@ -3,6 +3,7 @@ slides in disguise or half-turn twins of a symmetric part give way to the simple
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from sparseart.joints.candidates import mirror_seed, plausible_fits, without_half_turns
@@ -105,3 +106,35 @@ def test_a_half_turn_is_flagged_and_lowers_the_confidence():
     assert WarningCode.HALF_TURN not in codes(96.0)
     flagged = revolute_warnings(np.radians(178.0), 0.5, 1.0, 0.0, 0.1, 0.0, 2.0, 5.0)
     assert confidence(1.0, 0.0, 1.0, flagged) == 0.5 * confidence(1.0, 0.0, 1.0, [])
+
+
+def test_tied_hinge_rivals_widen_the_axis_sigma_and_far_ones_do_not():
+    """choose_fit takes the hinge axis nearest the static part. A rival that fits as well and lies
+    about as near (a rod's roll) makes that choice a coin toss: the sigma covers the rival. A rival
+    the attachment rule tells apart (its axis far from the body) leaves the sigma alone."""
+    from sparseart.joints.candidates import choose_fit, widen_for_tied_hinges
+
+    rng = np.random.default_rng(0)
+    static = np.column_stack([np.zeros(400), rng.uniform(-1, 1, 400), rng.uniform(-1, 1, 400)])  # a wall x = 0
+    part = np.column_stack([rng.uniform(0.1, 0.5, 200), rng.uniform(-0.2, 0.2, 200), np.zeros(200)])
+
+    def hinge(residual: float, axis: list[float], origin: list[float]) -> JointEstimate:
+        estimate = _estimate("revolute", residual, angle_deg=60.0)
+        estimate.axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+        estimate.origin = np.asarray(origin, dtype=np.float64)
+        estimate.uncertainty = {"axis_deg": 2.0}
+        return estimate
+
+    on_wall = hinge(0.0101, [0, 0, 1], [0.0, 0.0, 0.0])
+    tilted = hinge(0.0100, [0, np.sin(np.radians(9)), np.cos(np.radians(9))], [0.0, 0.0, 0.0])  # as near, 9 deg
+    far = hinge(0.0099, [0, 1, 0], [0.6, 0.0, 0.0])                                           # off the wall
+    chosen = choose_fit([on_wall, tilted, far], part, static)
+    assert (chosen is on_wall or chosen is tilted) and chosen.diagnostics["tied_hinge_deg"] == pytest.approx(9.0, abs=1e-6)
+    widen_for_tied_hinges(chosen, chosen.diagnostics["tied_hinge_deg"])
+    assert chosen.uncertainty["axis_deg"] == pytest.approx(9.0) and "rival hinge axis" in chosen.warnings[-1]
+
+    alone = hinge(0.0101, [0, 0, 1], [0.0, 0.0, 0.0])
+    chosen = choose_fit([alone, hinge(0.0099, [0, 1, 0], [0.6, 0.0, 0.0])], part, static)
+    assert chosen is alone and "tied_hinge_deg" not in chosen.diagnostics
+    widen_for_tied_hinges(chosen, chosen.diagnostics.get("tied_hinge_deg"))
+    assert chosen.uncertainty["axis_deg"] == 2.0
