@@ -233,3 +233,8 @@ def test_named_mask_ids_keep_touching_parts_apart_and_unpaired():
     # Ids drawn per image (scrambled): nothing is named.
     scrambled = _two_view_cloud("end", [(slab(-2.0), 0, 17), (slab(0.0), 0, 404), (slab(1.0), 1, 3)])
     assert named_mask_ids(start, scrambled) == frozenset()
+    # A per-image segmenter numbers its segments 1..k in every image: the ids repeat in both
+    # states but mark different places in different images -> nothing is named.
+    numbered = _two_view_cloud("start", [(slab(-2.0), 0, 1), (slab(0.0), 0, 2), (slab(3.0), 0, 3),
+                                         (slab(3.0), 1, 1), (slab(-2.0), 1, 2), (slab(0.0), 1, 3)])
+    assert named_mask_ids(numbered, end) == frozenset()
