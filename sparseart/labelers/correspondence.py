@@ -490,15 +490,16 @@ def _ids_keep_their_place(cloud: LabelledCloud, ids: set[int]) -> bool:
     by ``BOX_PAD_SHARE`` of the cloud's extent: a flat rack has a flat box) must overlap on every
     axis by at least half of the smaller one. True when the agreeing pairs hold at least
     ``NAMED_SAME_PLACE`` of the judged pairs' points (the smaller segment of each pair), or when no
-    id is seen twice. O(N + P) for P segment pairs."""
+    id is seen twice. O(N log N + P) for P segment pairs (the points are grouped by one sort)."""
     pad = BOX_PAD_SHARE * float(np.linalg.norm(np.ptp(cloud.points, axis=0))) if len(cloud) else 0.0
+    order = np.argsort(cloud.segment, kind="stable")
+    segments, first, counts = np.unique(cloud.segment[order], return_index=True, return_counts=True)
     boxes: dict[int, list[tuple[np.ndarray, np.ndarray, int]]] = {}
-    for segment, (frame, mask_id) in cloud.segment_source.items():
-        if mask_id not in ids:
+    for segment, start, count in zip(segments.tolist(), first.tolist(), counts.tolist()):
+        mask_id = cloud.segment_source[segment][1] if segment in cloud.segment_source else None
+        if mask_id not in ids or count < 10:
             continue
-        points = cloud.points[cloud.segment == segment]
-        if len(points) < 10:
-            continue
+        points = cloud.points[order[start:start + count]]
         low, high = np.percentile(points, [1, 99], axis=0)
         boxes.setdefault(mask_id, []).append((low - pad, high + pad, len(points)))
     agree = judged = 0.0
