@@ -119,6 +119,7 @@ def run(scene: Scene | str | Path, labeler: PartLabeler | None = None,
         aligned = align_scene(scene, lifted, seed=options.seed)
     for name, seconds in aligned.seconds.items():
         clock.add(f"align.{name}", seconds, _SUBSTAGE_WHY[name])
+    scene = aligned.scene or scene
     warnings = [*scene.warnings, *aligned.warnings]
     if options.matcher is not None and matcher is None:
         warnings.append("--matcher not used: every image has a camera pose, so nothing is aligned")
@@ -152,7 +153,8 @@ def run_clouds(start: LabelledCloud, end: LabelledCloud, labeler: PartLabeler | 
 _SUBSTAGE_WHY = {"load_model": "ONNX reconstructor: session created",
                  "reconstruct": "ONNX reconstructor: forward pass(es) and decoding",
                  "register_views": "unposed: views of each state registered to its first view",
-                 "align_states": "unposed: end state aligned to the start state by feature matches"}
+                 "align_states": "unposed: end state aligned to the start state by feature matches",
+                 "match_depth": "posed: end depth matched to the start view with the same camera"}
 
 
 def _options(options: RunOptions | None, overrides: dict) -> RunOptions:

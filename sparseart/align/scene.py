@@ -3,7 +3,10 @@
 ``align_scene`` takes what the lift stage produced and decides what the scene needs:
 
 * frame "world" (posed) or "model" (a reconstructor's joint frame): nothing to register
-  (alignment "cameras" / "model"; a "model" alignment is polished on the static part later);
+  (alignment "cameras" / "model"; a "model" alignment is polished on the static part later). A
+  posed end view taken from a start view's camera gets its depth matched to that view's on the
+  static scene when the two differ by a smooth ratio (a reconstructor run per state, a drifting
+  sensor: :mod:`sparseart.align.depth_ratio`; report entry ``"depth_ratio"``);
 * frame "views" (unposed RGB-D): every view of both states registered at once
   (:func:`~sparseart.align.graph.register_scene`: all pairs matched, components of views merged by
   pooled robust fits, poses solved jointly, per-view depth scale, checked state alignment);
@@ -49,6 +52,8 @@ class AlignedScene:
     registration: the report of :func:`registration_report` (per view and for the states).
     poses: {"start": [...], "end": [...]} (4, 4) camera -> result frame per view (None: not
         registered) for unposed scenes; empty otherwise.
+    scene: the scene with the end views' depth matched to the start views'
+        (:mod:`sparseart.align.depth_ratio`, posed scenes) when that changed it; None otherwise.
     """
 
     pointmaps: dict[str, list[Pointmap]]
@@ -60,6 +65,7 @@ class AlignedScene:
     diagnostics: dict = field(default_factory=dict)
     registration: dict = field(default_factory=dict)
     poses: dict[str, list[np.ndarray | None]] = field(default_factory=dict)
+    scene: Scene | None = None
 
 
 def align_scene(scene: Scene, lifted: LiftedScene, *, seed: int = 0, matcher=None) -> AlignedScene:
@@ -81,8 +87,10 @@ def align_scene(scene: Scene, lifted: LiftedScene, *, seed: int = 0, matcher=Non
         how = "cameras" if lifted.frame == "world" else "model"
         frame = (("world", "cameras.json world frame", "metres") if lifted.frame == "world"
                  else ("camera", reference, lifted.units))
-        return AlignedScene(lifted.pointmaps, how, frame, warnings=list(lifted.warnings),
-                            registration=_given_report(scene, how))
+        report = _given_report(scene, how)
+        if lifted.frame == "world":
+            return _posed(scene, lifted, frame, report)
+        return AlignedScene(lifted.pointmaps, how, frame, warnings=list(lifted.warnings), registration=report)
     frame = ("camera", reference, lifted.units)
     warnings = list(lifted.warnings)
     if lifted.frame == "views":
@@ -131,6 +139,28 @@ def align_scene(scene: Scene, lifted: LiftedScene, *, seed: int = 0, matcher=Non
                         "scale": float(alignment.transform.scale)}
     return AlignedScene(pointmaps, "features", frame, [c.transform for c in alignment.candidates],
                         seconds, warnings, diagnostics, report)
+
+
+def _posed(scene: Scene, lifted: LiftedScene, frame: tuple[str, str, str], report: dict) -> AlignedScene:
+    """Posed views stay where their cameras put them; an end view seen from a start view's camera
+    gets its depth matched to that view's on the static scene
+    (:func:`~sparseart.align.depth_ratio.match_end_depth`)."""
+    from sparseart.align.depth_ratio import match_end_depth
+
+    warnings = list(lifted.warnings)
+    began = time.perf_counter()
+    frames, maps, ratios = match_end_depth(scene.start, scene.end, lifted.pointmaps["start"], lifted.pointmaps["end"])
+    seconds = {"match_depth": time.perf_counter() - began}
+    report["depth_ratio"] = [r.report() for r in ratios]
+    applied = [r for r in ratios if r.applied]
+    if not applied:
+        return AlignedScene(lifted.pointmaps, "cameras", frame, seconds=seconds, warnings=warnings, registration=report)
+    for r in applied:
+        warnings.append(f"{r.end_image}: depth differs from {r.start_image} (same camera) by a smooth ratio (up to "
+                        f"{r.largest:.1%} on the static scene); matched to it there")
+    pointmaps = {"start": lifted.pointmaps["start"], "end": maps}
+    return AlignedScene(pointmaps, "cameras", frame, seconds=seconds, warnings=warnings, registration=report,
+                        scene=replace(scene, end=frames))
 
 
 def _emptied(pointmap: Pointmap) -> Pointmap:
