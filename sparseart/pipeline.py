@@ -21,7 +21,7 @@ from sparseart.joints.fit import FitConfig
 from sparseart.labelers.base import PartLabeler
 from sparseart.labelers.rules import RuleBasedLabeler, RuleLabelerConfig
 from sparseart.lift.labels import build_labelled_cloud
-from sparseart.types import JOINT_TYPES, Articulation, LabelledCloud, Scene, SceneError
+from sparseart.types import JOINT_TYPES, Articulation, LabelledCloud, PartLabels, Scene, SceneError
 
 if TYPE_CHECKING:   # heavy (onnxruntime / torch) option types, imported only by the stages using them
     from sparseart.lift.onnx_model import OnnxLiftOptions
@@ -56,6 +56,8 @@ class RunOptions:
     seed: random seed of every sampling step (RANSAC, ICP, labeler, fitter, refinement): results
         are deterministic for a seed; it overrides the seeds inside the stage configurations.
     refine: run the SPLART refinement (needs torch and the scene's images); refine_options: its options.
+    second_opinion: without masks, label and fit again with another seed and mark the joints that
+        change (:mod:`sparseart.joints.second_opinion`; about doubles the labelling time).
     """
 
     joint_type: str = "auto"
@@ -72,6 +74,7 @@ class RunOptions:
     seed: int = 0
     refine: bool = False
     refine_options: RefineOptions | None = None
+    second_opinion: bool = True
 
 
 def run(scene: Scene | str | Path, labeler: PartLabeler | None = None,
@@ -155,6 +158,26 @@ _SUBSTAGE_WHY = {"load_model": "ONNX reconstructor: session created",
                  "register_views": "unposed: views of each state registered to its first view",
                  "align_states": "unposed: end state aligned to the start state by feature matches",
                  "match_depth": "posed: end depth matched to the start view with the same camera"}
+
+
+def _motion_split(labels: PartLabels) -> bool:
+    diagnostics = getattr(labels, "diagnostics", None) or {}
+    return bool(diagnostics.get("motion_split", False))
+
+
+def _second_opinion(start: LabelledCloud, end: LabelledCloud, scene: Scene | None, labels: PartLabels,
+                    parts: list, labeler: RuleBasedLabeler, hints: list[np.ndarray], options: RunOptions,
+                    warnings: list[str], posed: bool | None) -> None:
+    """Label and fit the same clouds again with seed + 1 (its warnings discarded) and mark the
+    joints whose counterpart differs (:mod:`sparseart.joints.second_opinion`)."""
+    from sparseart.joints.second_opinion import apply_second_opinion
+
+    seed = options.seed + 1
+    other = RuleBasedLabeler(replace(labeler.config, seed=seed))
+    other_labels = other.label(start, end, scene, aligned=True, motion_hints=hints, posed=posed)
+    other_parts = fit_parts(start, end, other_labels, joint_type=options.joint_type,
+                            config=replace(options.fit or FitConfig(), seed=seed), warnings=[])
+    apply_second_opinion(parts, labels, other_parts, other_labels, warnings)
 
 
 def _options(options: RunOptions | None, overrides: dict) -> RunOptions:
@@ -277,6 +300,12 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
                      else "fitting revolute and prismatic, choosing by penalised residual"):
         parts = fit_parts(start, end, labels, joint_type=options.joint_type,
                           config=replace(options.fit or FitConfig(), seed=seed), warnings=warnings)
+    if options.second_opinion and isinstance(labeler, RuleBasedLabeler) and _motion_split(labels):
+        with clock.stage("second_opinion", "no masks: labelled and fitted again with another seed"):
+            _second_opinion(start, end, scene, labels, parts, labeler, hints, options, warnings,
+                            posed=True if alignment == "features" else None)
+    else:
+        clock.skip("second_opinion", "labels from masks (or another labeler): no second labelling")
     if options.refine:
         from sparseart.refine.api import RefineOptions, refine_parts
 

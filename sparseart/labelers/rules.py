@@ -171,6 +171,7 @@ class RuleBasedLabeler:
         diagnostics["consistency"] = _object_consistency(labels, work_start, work_end, start_map, views[1], warnings)
         diagnostics["voxel"] = voxel
         diagnostics["work_points"] = [len(work_start), len(work_end)]
+        diagnostics["motion_split"] = not has_masks
         labels.warnings = warnings
         _attach(labels, diagnostics)
         return labels

@@ -1,0 +1,81 @@
+"""The second opinion on labels found without masks (sparseart.joints.second_opinion): a joint
+whose counterpart in a run with another seed is missing, of another type or turned away is
+marked (warning, confidence halved, axis sigma raised); a stable one keeps its numbers. And the
+pipeline runs it only when the labels come from a motion split."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sparseart.joints.second_opinion import UNSTABLE_DEG, apply_second_opinion
+from sparseart.types import JointEstimate, PartLabels, PartResult, PartSpec
+
+
+def _joint(kind: str, axis, sigma: float = 1.0, confidence: float = 0.6) -> JointEstimate:
+    axis = np.asarray(axis, dtype=np.float64)
+    return JointEstimate(kind, axis / np.linalg.norm(axis), np.zeros(3), 0.5 if kind == "revolute" else None,
+                         None if kind == "revolute" else 0.2, np.eye(4), {"axis_deg": sigma}, 0.001, confidence)
+
+
+def _labels(ids_start: list[int], ids_end: list[int]) -> PartLabels:
+    parts = [PartSpec(0, "static")] + [PartSpec(i, "movable") for i in sorted(set(ids_start) - {0, -1})]
+    return PartLabels(parts, np.asarray(ids_start), np.asarray(ids_end))
+
+
+def _run(joints: dict[int, JointEstimate | None]) -> list[PartResult]:
+    return [PartResult(PartSpec(i, "movable"), 10, j) for i, j in joints.items()]
+
+
+START = [0] * 10 + [1] * 10 + [2] * 10
+END = [0] * 10 + [1] * 10 + [2] * 10
+
+
+def test_stable_joint_keeps_its_numbers_and_records_the_gap():
+    parts = _run({1: _joint("revolute", [0, 0, 1]), 2: _joint("prismatic", [1, 0, 0])})
+    # the second run: same points, axes 3 deg off, part ids swapped (ids are arbitrary)
+    turned = [np.sin(np.radians(3)), 0, np.cos(np.radians(3))]
+    other = _run({7: _joint("revolute", turned), 8: _joint("prismatic", [1, 0.02, 0])})
+    other_labels = _labels([0] * 10 + [7] * 10 + [8] * 10, [0] * 10 + [7] * 10 + [8] * 10)
+    warnings: list[str] = []
+    apply_second_opinion(parts, _labels(START, END), other, other_labels, warnings)
+    assert warnings == []
+    assert parts[0].joint.confidence == 0.6 and parts[0].joint.uncertainty["axis_deg"] == 1.0
+    assert parts[0].joint.diagnostics["second_opinion"]["axis_deg"] == pytest.approx(3.0, abs=1e-6)
+    assert parts[1].joint.diagnostics["second_opinion"]["type"] == "prismatic"
+
+
+def test_turned_missing_or_retyped_counterparts_are_marked():
+    parts = _run({1: _joint("revolute", [0, 0, 1], sigma=2.0), 2: _joint("prismatic", [1, 0, 0])})
+    far = 2 * UNSTABLE_DEG
+    other = _run({1: _joint("revolute", [np.sin(np.radians(far)), 0, np.cos(np.radians(far))])})
+    other_labels = _labels(START[:20] + [0] * 10, END[:20] + [-1] * 10)   # part 2 not found again
+    warnings: list[str] = []
+    apply_second_opinion(parts, _labels(START, END), other, other_labels, warnings)
+    turned, missing = parts[0].joint, parts[1].joint
+    assert turned.confidence == pytest.approx(0.3) and turned.uncertainty["axis_deg"] == pytest.approx(far)
+    assert missing.confidence == pytest.approx(0.3) and missing.uncertainty["axis_deg"] == 90.0
+    assert missing.diagnostics["second_opinion"] == {"axis_deg": None, "type": None, "overlap": 0.0}
+    assert len(warnings) == 2 and warnings[0].startswith("part 1: unstable without masks")
+    retyped = _run({1: _joint("revolute", [0, 0, 1])})
+    apply_second_opinion(retyped, _labels(START, END), _run({1: _joint("prismatic", [0, 0, 1])}),
+                         _labels(START, END), warnings)
+    assert retyped[0].joint.uncertainty["axis_deg"] == 90.0 and "fits it as prismatic" in warnings[-1]
+
+
+def test_pipeline_runs_it_only_without_masks():
+    """Two posed clouds of a box whose lid turns: with masks the labels are the masks' and no
+    second labelling runs; without them it runs and records its opinion on the joint."""
+    from tests.synthetic import make_clouds
+
+    import sparseart
+
+    start, end, _ = make_clouds("revolute", amount=np.radians(40))
+    with_masks = sparseart.run_clouds(start, end)
+    assert not next(s for s in with_masks.stages if s.name == "second_opinion").ran
+    start.segment[:] = -1
+    end.segment[:] = -1
+    without = sparseart.run_clouds(start, end)
+    stage = next(s for s in without.stages if s.name == "second_opinion")
+    assert stage.ran
+    joint = next(p.joint for p in without.parts if p.joint is not None)
+    assert joint.diagnostics["second_opinion"]["axis_deg"] is not None
