@@ -111,3 +111,13 @@ def test_render_command_writes_scene(tmp_path: Path, capsys) -> None:
 def test_render_command_bad_object(tmp_path: Path, capsys) -> None:
     assert main(["render", str(tmp_path), str(tmp_path / "s")]) == 2
     assert "mobility.urdf" in capsys.readouterr().err
+
+
+def test_no_second_opinion_flag_skips_the_second_labelling(cabinet_scene: Path, tmp_path: Path) -> None:
+    """Without masks the second labelling runs by default and is reported as a stage;
+    ``--no-second-opinion`` skips it (and says why)."""
+    for flags, ran in (([], True), (["--no-second-opinion"], False)):
+        out = tmp_path / f"out{len(flags)}"
+        assert main(["run", str(cabinet_scene), "--out", str(out), "--no-masks", *flags]) == 0
+        stages = {s["name"]: s for s in json.loads((out / "articulation.json").read_text())["stages"]}
+        assert stages["second_opinion"]["ran"] is ran, stages["second_opinion"]
