@@ -53,6 +53,11 @@ def test_grid_is_one_factor_at_a_time():
                 assert changed == {"views", "posed", "use_masks", "realism"}, changed
                 assert setting.views == 1 and setting.posed and not setting.use_masks
                 assert setting.realism == realistic.realism.with_levels(pose_noise=0.0)
+            elif setting.name == "robot-sensor-1view":   # the same with a depth sensor (no per-state warp)
+                robot = by_name["robot-1view"]
+                changed = {k for k, v in vars(setting).items() if k != "name" and v != getattr(robot, k)}
+                assert changed == {"realism"}, changed
+                assert setting.realism == robot.realism.with_levels(depth_warp=0.0, depth_scale=0.0, confidence=0.0)
             else:
                 changed = {k for k, v in vars(setting).items() if k != "name" and v != getattr(realistic, k)}
                 assert changed <= {"views"} or changed <= {"refine"}, (setting.name, changed)
@@ -65,7 +70,8 @@ def test_grid_is_one_factor_at_a_time():
     assert ("refine" in names) != any(r.startswith("refine") for r in skipped)  # run or skipped with a reason
     assert ("realistic-xfeat" in names) != any(r.startswith("*-xfeat") for r in skipped)
     assert grid_settings(quick=True)[0] == [BenchSetting(name="default")]
-    assert {"realistic", "realistic-1view", "robot-1view", "knob-jpeg", "knob-occluder"} <= set(names)
+    assert {"realistic", "realistic-1view", "robot-1view", "robot-sensor-1view", "knob-jpeg",
+            "knob-occluder"} <= set(names)
 
 
 def test_settings_are_selected_by_pattern():

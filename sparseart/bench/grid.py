@@ -69,7 +69,9 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
     Realistic renders (:mod:`sparseart.datasets.realism`, every knob at level 1, unposed) --
     ``realistic`` (3 views), ``realistic-1view``, ``realistic+refine``, ``robot-1view`` (what a
     robot's calibrated static head camera gives: posed, one view per state from the same pose, no
-    masks, every other knob at level 1 -- the shape of the real captures), and ``knob-NAME``: one knob
+    masks, every other knob at level 1 -- the shape of the real captures), ``robot-sensor-1view`` (the
+    same with a depth sensor's errors only: no per-state warp or scale, no confidence map), and
+    ``knob-NAME``: one knob
     alone at level 1 on the unposed 3-view default (posed for ``knob-pose_noise``, whose error
     lives in the written poses), so the table shows which error hurts most.
     ``quick``: the default setting only.
@@ -93,6 +95,11 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
                 realistic, replace(realistic, views=1, name="realistic-1view"),
                 replace(base, views=1, use_masks=False, realism=PRESETS["realistic"].with_levels(pose_noise=0.0),
                         name="robot-1view"),
+                # the same with a depth sensor instead of a reconstructor: no per-state warp or scale,
+                # no confidence map (the real captures kept aside are robot RGB-D)
+                replace(base, views=1, use_masks=False, name="robot-sensor-1view",
+                        realism=PRESETS["realistic"].with_levels(pose_noise=0.0, depth_warp=0.0, depth_scale=0.0,
+                                                                 confidence=0.0)),
                 *(replace(base, posed=knob == "pose_noise", realism=Realism(**{knob: 1.0}), name=f"knob-{knob}")
                   for knob in KNOBS)]
     skipped = []
