@@ -160,7 +160,8 @@ _SUBSTAGE_WHY = {"load_model": "ONNX reconstructor: session created",
                  "match_depth": "posed: end depth matched to the start view with the same camera"}
 
 
-def _motion_split(labels: PartLabels) -> bool:
+def _labelled_by_motion(labels: PartLabels) -> bool:
+    """Did the labeler split the points by motion (no masks)?"""
     diagnostics = getattr(labels, "diagnostics", None) or {}
     return bool(diagnostics.get("motion_split", False))
 
@@ -300,7 +301,7 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
                      else "fitting revolute and prismatic, choosing by penalised residual"):
         parts = fit_parts(start, end, labels, joint_type=options.joint_type,
                           config=replace(options.fit or FitConfig(), seed=seed), warnings=warnings)
-    if options.second_opinion and isinstance(labeler, RuleBasedLabeler) and _motion_split(labels):
+    if options.second_opinion and isinstance(labeler, RuleBasedLabeler) and _labelled_by_motion(labels):
         with clock.stage("second_opinion", "no masks: labelled and fitted again with another seed"):
             _second_opinion(start, end, scene, labels, parts, labeler, hints, options, warnings,
                             posed=True if alignment == "features" else None)

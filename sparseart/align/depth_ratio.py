@@ -37,6 +37,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from sparseart.geometry.transforms import rotation_angle
 from sparseart.types import Frame, Pointmap
 
 SAME_POSE_DEG = 0.2        # cameras closer than this in rotation ...
@@ -96,10 +97,9 @@ def _same_camera(a: Frame, b: Frame, depth: float) -> bool:
         return False
     if (ca.width, ca.height) != (cb.width, cb.height) or not np.allclose(ca.K, cb.K, rtol=1e-6, atol=1e-6):
         return False
-    ra, rb = ca.cam_to_world[:3, :3], cb.cam_to_world[:3, :3]
-    cosine = np.clip((np.trace(ra.T @ rb) - 1.0) / 2.0, -1.0, 1.0)
+    turn = np.degrees(rotation_angle(ca.cam_to_world[:3, :3].T @ cb.cam_to_world[:3, :3]))
     gap = np.linalg.norm(ca.cam_to_world[:3, 3] - cb.cam_to_world[:3, 3])
-    return float(np.degrees(np.arccos(cosine))) <= SAME_POSE_DEG and gap <= SAME_POSE_SHARE * depth
+    return turn <= SAME_POSE_DEG and gap <= SAME_POSE_SHARE * depth
 
 
 def _basis(u: np.ndarray, v: np.ndarray) -> np.ndarray:

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sparseart.geometry.transforms import axis_angle_deg
 from sparseart.types import PartLabels, PartResult
 
 UNSTABLE_DEG = 15.0   # axes of the two runs further apart than this: the labelling is unstable
@@ -33,11 +34,6 @@ def _overlap(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray])
     both = int((a[0] & b[0]).sum() + (a[1] & b[1]).sum())
     either = int((a[0] | b[0]).sum() + (a[1] | b[1]).sum())
     return both / either if either else 0.0
-
-
-def _axis_gap_deg(a: np.ndarray, b: np.ndarray) -> float:
-    cosine = abs(float(np.dot(a, b))) / max(float(np.linalg.norm(a) * np.linalg.norm(b)), 1e-12)
-    return float(np.degrees(np.arccos(min(1.0, cosine))))
 
 
 def apply_second_opinion(parts: list[PartResult], labels: PartLabels, other_parts: list[PartResult],
@@ -57,7 +53,7 @@ def apply_second_opinion(parts: list[PartResult], labels: PartLabels, other_part
         if counterpart is None or overlap < MIN_OVERLAP:
             gap, kind, why = None, None, "finds no such part"
         else:
-            gap, kind = _axis_gap_deg(joint.axis, counterpart.joint.axis), counterpart.joint.type
+            gap, kind = axis_angle_deg(joint.axis, counterpart.joint.axis), counterpart.joint.type
             why = (f"fits it as {kind}" if kind != joint.type
                    else f"puts its axis {gap:.0f} deg away" if gap > UNSTABLE_DEG else "")
         joint.diagnostics["second_opinion"] = {"axis_deg": gap, "type": kind, "overlap": round(overlap, 3)}
