@@ -177,7 +177,9 @@ class _Ratings:
                 part_end: np.ndarray) -> float:
         """Blocked-step share (:func:`~.correspondence.blocked_share`) of the motion's hit points
         (own_*) in both states; the part's points (part_*: hit or hidden, they move along) are
-        told apart from obstacles by checking the 8 nearest neighbours of a stepped point."""
+        told apart from obstacles by checking the 8 nearest neighbours of a stepped point, and a
+        step that meets a surface counts only when it runs into it, not along it (the normal of the
+        cloud there, :func:`~.correspondence.moves_into_surface`)."""
         shares = []
         for cloud, tree, owned, part, direction in ((self.start, self.start_all, own_start, part_start, 1.0),
                                                     (self.end, self.end_all, own_end, part_end, -1.0)):
@@ -195,7 +197,7 @@ class _Ratings:
                 index = np.where(found, index, 0)
                 return np.any(found & ~mask[index], axis=1)
 
-            shares.append(blocked_step_share(transform, direction, points, self.radius, near_other))
+            shares.append(blocked_step_share(transform, direction, points, self.radius, near_other, surface=tree))
         return float(np.mean(shares))
 
 
