@@ -289,3 +289,19 @@ def test_sliding_window_without_masks_unposed(tmp_path):
     gt = render_partnet_scene(PARTNET_DIR / "window_push_102801", scene_dir, views=3, seed=0, posed=False)
     rows = evaluate(sparseart.run(scene_dir, use_masks=False), load_scene(scene_dir), gt)
     assert len(rows) == 1 and rows[0]["type_correct"] and rows[0]["axis_deg"] < 10.0, rows
+
+
+@pytest.mark.skipif(not (PARTNET_DIR / "drawer_31249").is_dir(), reason=f"drawer_31249 not found in {PARTNET_DIR}")
+def test_drawer_slides_along_the_body_axis_without_masks(tmp_path):
+    """A table's drawer without masks (posed, 3 views): its moved pieces register to a slide
+    tilted 8 deg off its slot; the slides along the body's own axes, voted by the moved points,
+    give the true one (before: 8.3 deg)."""
+    import sparseart
+    from sparseart.bench.evaluate import evaluate
+    from sparseart.datasets.partnet import render_partnet_scene
+    from sparseart.io.scene import load_scene
+
+    scene_dir = tmp_path / "drawer"
+    gt = render_partnet_scene(PARTNET_DIR / "drawer_31249", scene_dir, views=3, seed=0, posed=True)
+    rows = evaluate(sparseart.run(scene_dir, use_masks=False), load_scene(scene_dir), gt)
+    assert len(rows) == 1 and rows[0]["type_correct"] and rows[0]["axis_deg"] < 2.0, rows
