@@ -304,13 +304,21 @@ def _twin_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
     for u in directions:
         votes = np.array([(ratings.end_tree.query(points + d * u, k=1, distance_upper_bound=ratings.radius)[0]
                            < ratings.radius).sum() * scale for d in grid])
-        for i in range(len(grid)):
-            low, high = max(0, i - 2), min(len(grid), i + 3)
-            if votes[i] < min_points or votes[i] < votes[low:high].max() or (i > low and votes[i] == votes[i - 1]):
-                continue
-            transform = np.eye(4)
-            transform[:3, 3] = grid[i] * u
-            found.append(transform)
+        found.extend(_vote_peaks(votes, grid, u, min_points))
+    return found
+
+
+def _vote_peaks(votes: np.ndarray, lengths: np.ndarray, direction: np.ndarray, min_points: int) -> list[np.ndarray]:
+    """Pure translations ``lengths[i] * direction`` ((4, 4) each) at the local maxima of ``votes``
+    (within two grid steps; the first of equal neighbours) with at least ``min_points`` votes. O(L)."""
+    found = []
+    for i in range(len(lengths)):
+        low, high = max(0, i - 2), min(len(lengths), i + 3)
+        if votes[i] < min_points or votes[i] < votes[low:high].max() or (i > low and votes[i] == votes[i - 1]):
+            continue
+        transform = np.eye(4)
+        transform[:3, 3] = lengths[i] * direction
+        found.append(transform)
     return found
 
 
@@ -354,13 +362,7 @@ def _frame_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
             votes += weight * np.array([(tree.query(points + sign * d * u, k=1,
                                                     distance_upper_bound=ratings.radius)[0] < ratings.radius).sum()
                                         for d in grid])
-        for i in range(len(grid)):
-            low, high = max(0, i - 2), min(len(grid), i + 3)
-            if votes[i] < min_points or votes[i] < votes[low:high].max() or (i > low and votes[i] == votes[i - 1]):
-                continue
-            transform = np.eye(4)
-            transform[:3, 3] = grid[i] * u
-            found.append(transform)
+        found.extend(_vote_peaks(votes, grid, u, min_points))
     return found
 
 
