@@ -38,6 +38,17 @@ def median_spacing(points: np.ndarray, *, sample: int | None = None, rng: np.ran
     return float(np.ptp(points, axis=0).max() * 1e-3) or 1e-12
 
 
+def pca_normals(points: np.ndarray, positions: np.ndarray, neighbours: int,
+                tree: cKDTree | None = None) -> np.ndarray:
+    """(S, 3) unoriented unit surface normals at ``positions`` (S, 3): the smallest principal axis
+    of the ``neighbours`` nearest of ``points`` (N, 3) around each. tree: a prebuilt cKDTree of
+    ``points``. O(S k log N) (+ O(N log N) without ``tree``)."""
+    tree = tree if tree is not None else cKDTree(points)
+    _, index = tree.query(positions, k=neighbours)
+    local = points[index] - points[index].mean(axis=1, keepdims=True)
+    return np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))[1][:, :, 0]
+
+
 def radius_components(points: np.ndarray, link_radius: float) -> np.ndarray:
     """Connected components of the radius graph of ``points`` (N, 3): (N,) int64 component label
     per point, 0..k-1; points closer than ``link_radius`` (same units) are linked. O(N log N + E)."""

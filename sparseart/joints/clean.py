@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sparseart.geometry.clouds import pca_normals
+
 
 def clean_part_points(
     points: np.ndarray,
@@ -93,8 +95,4 @@ def estimate_normals(points: np.ndarray, neighbours: int = 12, at: np.ndarray | 
     rows = np.arange(count) if at is None else np.asarray(at)
     if count < 4:
         return np.tile([0.0, 0.0, 1.0], (len(rows), 1))
-    tree = tree if tree is not None else cKDTree(points)
-    _, index = tree.query(points[rows], k=min(neighbours, count))
-    local = points[index] - points[index].mean(axis=1, keepdims=True)
-    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
-    return vectors[:, :, 0]
+    return pca_normals(points, points[rows], min(neighbours, count), tree=tree)

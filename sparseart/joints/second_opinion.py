@@ -59,8 +59,8 @@ def apply_second_opinion(parts: list[PartResult], labels: PartLabels, other_part
         joint.diagnostics["second_opinion"] = {"axis_deg": gap, "type": kind, "overlap": round(overlap, 3)}
         if not why:
             continue
-        sigma = 90.0 if gap is None or kind != joint.type else max(gap, float(joint.uncertainty.get("axis_deg", 0.0)))
-        joint.uncertainty["axis_deg"] = max(sigma, float(joint.uncertainty.get("axis_deg", 0.0)))
+        disagreement = 90.0 if gap is None or kind != joint.type else gap
+        joint.uncertainty["axis_deg"] = max(disagreement, float(joint.uncertainty.get("axis_deg", 0.0)))
         joint.confidence = 0.5 * joint.confidence
         message = (f"unstable without masks: a second labelling with another random seed {why}; "
                    f"confidence halved, axis uncertainty {joint.uncertainty['axis_deg']:.0f} deg (give masks)")

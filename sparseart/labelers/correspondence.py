@@ -34,6 +34,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from ..geometry.clouds import pca_normals
 from ..joints.config import FitConfig
 from ..joints.select import FAR_PIVOT_MAX_TURN_DEG
 from ..types import LabelledCloud
@@ -196,9 +197,7 @@ class PairContext:
         if state not in self._state_trees:
             self._state_trees[state] = cKDTree((self.start if state == "start" else self.end).points)
         cloud = (self.start if state == "start" else self.end).points
-        _, neighbours = self._state_trees[state].query(points, k=10)
-        local = cloud[neighbours] - cloud[neighbours].mean(axis=1, keepdims=True)
-        return np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))[1][:, :, 0]
+        return pca_normals(cloud, points, 10, tree=self._state_trees[state])
 
 
 def manhattan_frame(points: np.ndarray, radius: float, sample: int = 3000, candidates: int = 300) -> np.ndarray:
@@ -214,9 +213,7 @@ def manhattan_frame(points: np.ndarray, radius: float, sample: int = 3000, candi
     if len(points) < 50:
         return fallback
     pick = points[np.linspace(0, len(points) - 1, min(sample, len(points))).astype(np.int64)]
-    _, neighbours = cKDTree(points).query(pick, k=12)
-    local = points[neighbours] - points[neighbours].mean(axis=1, keepdims=True)
-    normals = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))[1][:, :, 0]
+    normals = pca_normals(points, pick, 12)
     cos10, sin10 = np.cos(np.radians(10.0)), np.sin(np.radians(10.0))
 
     def dominant(pool: np.ndarray) -> np.ndarray | None:
@@ -360,10 +357,7 @@ def moves_into_surface(surface: cKDTree, points: np.ndarray, displacement: np.nd
     k = min(NORMAL_NEIGHBOURS, surface.n)
     if k < 3 or len(points) == 0:
         return np.ones(len(points), dtype=bool)
-    _, index = surface.query(points, k=k)
-    neighbours = surface.data[index]
-    centred = neighbours - neighbours.mean(axis=1, keepdims=True)
-    normals = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))[1][:, :, 0]
+    normals = pca_normals(surface.data, points, k, tree=surface)
     length = np.linalg.norm(displacement, axis=1)
     direction = displacement / np.maximum(length, 1e-12)[:, None]
     return np.abs(np.einsum("ni,ni->n", normals, direction)) >= INTO_SURFACE_SINE

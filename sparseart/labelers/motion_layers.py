@@ -17,8 +17,9 @@ onto the other state's moved points. Slides along the static body's own axes (it
 frame) by the lengths the moved points vote for are candidates too (a drawer pulled towards the
 camera hides its closed pose, so no registration finds its slide). A turning slab (lid, door)
 also gets its mirrored twins as candidates (the motion composed with the slab's half-turns,
-which registration cannot tell apart); the objective's physics charge decides. Chosen motions whose layers touch and agree (the larger
-one's motion carries the smaller one's points within the full inlier radius) are merged.
+which registration cannot tell apart); the objective's physics charge decides. Chosen motions
+whose layers touch and agree (the larger one's motion carries the smaller one's points within the
+full inlier radius) are merged.
 
 Moved points that no motion explains (rated <= 0 by all: e.g. a twin drawer's front that the
 other drawer's motion puts in free space) form residual pieces; each is registered onto the other
@@ -302,10 +303,17 @@ def _twin_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
     grid = np.arange(2.0 * ratings.radius, ratings.context.diameter, step)
     found = []
     for u in directions:
-        votes = np.array([(ratings.end_tree.query(points + d * u, k=1, distance_upper_bound=ratings.radius)[0]
-                           < ratings.radius).sum() * scale for d in grid])
+        votes = scale * _slide_votes(points, ratings.end_tree, u, grid, ratings.radius)
         found.extend(_vote_peaks(votes, grid, u, min_points))
     return found
+
+
+def _slide_votes(points: np.ndarray, tree: cKDTree, direction: np.ndarray, lengths: np.ndarray,
+                 radius: float) -> np.ndarray:
+    """(L,) int: for each length d, how many of ``points`` (P, 3) land within ``radius`` of a point
+    of ``tree`` after the slide d * ``direction``. O(L P log M)."""
+    return np.array([(tree.query(points + d * direction, k=1, distance_upper_bound=radius)[0] < radius).sum()
+                     for d in lengths])
 
 
 def _vote_peaks(votes: np.ndarray, lengths: np.ndarray, direction: np.ndarray, min_points: int) -> list[np.ndarray]:
@@ -359,9 +367,7 @@ def _frame_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
     for u in np.asarray(frame, dtype=np.float64).T:
         votes = np.zeros(len(grid))
         for points, tree, sign, weight in voters:
-            votes += weight * np.array([(tree.query(points + sign * d * u, k=1,
-                                                    distance_upper_bound=ratings.radius)[0] < ratings.radius).sum()
-                                        for d in grid])
+            votes += weight * _slide_votes(points, tree, sign * u, grid, ratings.radius)
         found.extend(_vote_peaks(votes, grid, u, min_points))
     return found
 
