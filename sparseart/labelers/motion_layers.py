@@ -26,7 +26,10 @@ other drawer's motion puts in free space) form residual pieces; each is register
 state's unexplained moved points and its motion joins when it hits at least a part's worth of
 points in both states and a joint anchored on the static body could make it (few blocked steps,
 a slide out of its slot). Each point then follows the motion rating it best; ties and
-hidden-only points go to the motion whose hits lie nearest. Cost O(M N (log N + V)) for M
+hidden-only points go to the motion whose hits lie nearest, and a layer's piece (its points of
+one state linked at the inlier radius) without a single hit stays unassigned: landing hidden is
+no evidence of being attached (a hand on a door in one state, carried back by the door's turn,
+lands behind the cabinet as the door's own sides do). Cost O(M N (log N + V)) for M
 motions and N moved points, plus one registration per residual piece.
 """
 from __future__ import annotations
@@ -528,8 +531,8 @@ def _touching(ratings: _Ratings, a: MotionLayer, b: MotionLayer, radius: float) 
 
 def _assign_points(ratings: _Ratings, chosen: list[int]) -> list[MotionLayer]:
     """Every moved point follows the motion rating it best (hits first); ties and hidden-only
-    points go to the motion whose hits lie nearest. Points rated <= 0 by every motion stay
-    unassigned."""
+    points go to the motion whose hits lie nearest. Points rated <= 0 by every motion, and the
+    pieces of a layer without a hit (:func:`_drop_pieces_without_hits`), stay unassigned."""
     if not chosen:
         return []
     n_start = len(ratings.start_moved)
@@ -556,6 +559,7 @@ def _assign_points(ratings: _Ratings, chosen: list[int]) -> list[MotionLayer]:
         nearest = distance.argmin(axis=0)
         reachable = np.isfinite(distance.min(axis=0))
         owner[pending[reachable]] = nearest[reachable]
+    _drop_pieces_without_hits(ratings, table, owner, points, state)
     layers = []
     for slot, k in enumerate(chosen):
         start_idx = ratings.start_moved[owner[:n_start] == slot]
@@ -563,3 +567,22 @@ def _assign_points(ratings: _Ratings, chosen: list[int]) -> list[MotionLayer]:
         layers.append(MotionLayer(ratings.motions[k], ratings.physics[k], start_idx, end_idx,
                                   PHYSICS_WEIGHT * ratings.physics[k] + SLIDE_WEIGHT * ratings.slides[k]))
     return layers
+
+
+def _drop_pieces_without_hits(ratings: _Ratings, table: np.ndarray, owner: np.ndarray, points: np.ndarray,
+                              state: np.ndarray) -> None:
+    """Unassign (owner -1, in place) every piece of a layer that its motion never carries onto the
+    other state's moved points: within each state, the layer's points linked at the inlier radius
+    form pieces, and a piece joins only with at least one hit. Hidden credit alone is no evidence
+    of rigid attachment: a hand on a door in one state, carried back by the door's turn, lands
+    behind the cabinet (hidden) as well as the door's own sides do; only the sides touch the
+    door's seen hits. table: (chosen, N) ratings; points / state: (N, 3) / (N,) of the moved
+    points of both states. O(N log N)."""
+    for slot in range(len(table)):
+        for flag in (False, True):
+            members = np.flatnonzero((owner == slot) & (state == flag))
+            if len(members) == 0:
+                continue
+            pieces = radius_components(points[members], ratings.context.radius)
+            hit_pieces = np.unique(pieces[table[slot, members] >= 1.0])
+            owner[members[~np.isin(pieces, hit_pieces)]] = -1
