@@ -332,3 +332,22 @@ def test_a_hand_in_one_state_does_not_join_the_door_without_masks(tmp_path):
     part = result.labels.end_part == rows[0]["part"]
     door = gt["joints"][0]["mask_id"]
     assert np.count_nonzero(part & (groups == 0)) < 0.2 * np.count_nonzero(part & (groups == door))
+
+
+def test_slide_votes_count_exactly_what_a_query_per_length_counts():
+    """The slide vote (one 2-D tube query per point instead of one 3-D query per point and length)
+    gives the same count at every length as landing each slid point on its nearest target."""
+    from scipy.spatial import cKDTree
+    from sparseart.labelers.motion_layers import _slide_votes
+
+    rng = np.random.default_rng(0)
+    for _ in range(10):
+        points, targets = rng.normal(size=(300, 3)), rng.normal(size=(500, 3)) * rng.uniform(0.5, 2.0)
+        direction = rng.normal(size=3)
+        direction /= np.linalg.norm(direction)
+        radius = rng.uniform(0.05, 0.3)
+        steps = np.arange(2.0 * radius, 3.0, 0.5 * radius)
+        lengths = np.concatenate([-steps[::-1], steps])
+        tree = cKDTree(targets)
+        brute = [(tree.query(points + d * direction, distance_upper_bound=radius)[0] < radius).sum() for d in lengths]
+        assert np.array_equal(_slide_votes(points, tree, direction, lengths, radius), brute)

@@ -284,8 +284,8 @@ def _twin_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
     ``SLIDE_MAX_DEG``, each start moved point p votes for the lengths d at which p + d u lands on
     an end moved point; lengths with at least ``min_points`` votes that are local maxima become
     pure translations d u (the caller drops those equal to a rated motion). Lengths are searched from 2 hit
-    radii to the diameter in steps of half a hit radius: O(U (D / r) S log E) for U directions,
-    S start and E end moved points."""
+    radii to the diameter in steps of half a hit radius: O(U (E log E + S log E + K)) for U
+    directions, S start and E end moved points and K tube pairs (:func:`_slide_votes`)."""
     directions: list[np.ndarray] = []
     for transform in ratings.motions:
         angle, shift = motion_size(transform)
@@ -313,10 +313,39 @@ def _twin_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
 
 def _slide_votes(points: np.ndarray, tree: cKDTree, direction: np.ndarray, lengths: np.ndarray,
                  radius: float) -> np.ndarray:
-    """(L,) int: for each length d, how many of ``points`` (P, 3) land within ``radius`` of a point
-    of ``tree`` after the slide d * ``direction``. O(L P log M)."""
-    return np.array([(tree.query(points + d * direction, k=1, distance_upper_bound=radius)[0] < radius).sum()
-                     for d in lengths])
+    """(L,) int: for each length d of the ascending ``lengths``, how many of ``points`` (P, 3) land
+    within ``radius`` of a point of ``tree`` (its M targets) after the slide d * ``direction``.
+
+    Exact, without a query per length: a point p lands on target q after the slide d u iff q lies
+    in the tube of radius r around p's line along u, and d is within h = sqrt(r^2 - |q - p|_perp^2)
+    of (q - p) . u. So the targets of a point are the pairs within r of it across u (a 2-D k-d
+    tree of the targets projected onto the plane normal to u), each pair covers the lengths of one
+    interval, and a point votes once for every length one of its intervals covers.
+    O(M log M + P log M + K + V) for K tube pairs and V (point, length) votes; was O(L P log M).
+    """
+    u = np.asarray(direction, dtype=np.float64)
+    u = u / np.linalg.norm(u)
+    basis = np.linalg.svd(u[None, :])[2][1:]                  # (2, 3): the plane normal to u
+    targets = tree.data
+    pairs = cKDTree(targets @ basis.T).query_ball_point(points @ basis.T, r=radius)
+    counts = np.fromiter((len(p) for p in pairs), dtype=np.int64, count=len(pairs))
+    if counts.sum() == 0:
+        return np.zeros(len(lengths), dtype=np.int64)
+    voter = np.repeat(np.arange(len(points)), counts)
+    target = np.fromiter((j for p in pairs for j in p), dtype=np.int64, count=int(counts.sum()))
+    offset = targets[target] - points[voter]
+    along = offset @ u
+    across = np.sum(offset ** 2, axis=1) - along ** 2
+    half = np.sqrt(np.maximum(radius ** 2 - across, 0.0))
+    first = np.searchsorted(lengths, along - half, side="right")
+    stop = np.searchsorted(lengths, along + half, side="left")
+    # lengths strictly inside (along - half, along + half): |p + d u - q| < r
+    span = np.maximum(stop - first, 0)
+    if span.sum() == 0:
+        return np.zeros(len(lengths), dtype=np.int64)
+    index = np.repeat(first - np.cumsum(span) + span, span) + np.arange(int(span.sum()))
+    key = np.unique(np.repeat(voter, span) * len(lengths) + index)
+    return np.bincount(key % len(lengths), minlength=len(lengths)).astype(np.int64)
 
 
 def _vote_peaks(votes: np.ndarray, lengths: np.ndarray, direction: np.ndarray, min_points: int) -> list[np.ndarray]:
@@ -347,8 +376,9 @@ def _frame_slides(ratings: _Ratings, min_points: int) -> list[np.ndarray]:
     candidates were turns of 18 and 54 deg and no slide). Here every seen moved point of either
     state votes for the lengths d at which it lands on a moved point (seen or unseen) of the other
     state after a slide of d along a frame axis; local maxima with at least ``min_points`` votes
-    become candidate slides (the selection decides). O(3 (2 D / r) P log M) for P <= 2
-    ``FRAME_SLIDE_POINTS`` voters, grid step r / 2 up to the diameter D."""
+    become candidate slides (the selection decides). O(3 (M log M + P log M + K + V)) for P <= 2
+    ``FRAME_SLIDE_POINTS`` voters and the tube pairs K and votes V of :func:`_slide_votes`, grid
+    step r / 2 up to the diameter D (V <= 4 K)."""
     frame = ratings.context.frame
     if frame is None:
         return []
