@@ -19,7 +19,8 @@ camera hides its closed pose, so no registration finds its slide). A turning sla
 also gets its mirrored twins as candidates (the motion composed with the slab's half-turns,
 which registration cannot tell apart); the objective's physics charge decides. Chosen motions
 whose layers touch and agree (the larger one's motion carries the smaller one's points within the
-full inlier radius) are merged.
+full inlier radius, or both turn alike and differ only by a shift in the plane of the slab they
+form: a flat lid slid within its plane still lands on itself) are merged.
 
 Moved points that no motion explains (rated <= 0 by all: e.g. a twin drawer's front that the
 other drawer's motion puts in free space) form residual pieces; each is registered onto the other
@@ -502,7 +503,8 @@ def _merge_agreeing(ratings: _Ratings, layers: list[MotionLayer]) -> list[Motion
     apart), so one part whose registration is a little off in different places can come out as
     several nearly equal motions, each claiming a patch. A layer whose points the motion of a
     larger layer, which it touches, carries onto the other state within the full inlier radius
-    (share >= ``MERGE_HIT_SHARE``) joins it; the merged layer keeps the motion of the two that
+    (share >= ``MERGE_HIT_SHARE``), or whose motion differs from it only by a shift in the plane
+    of the slab they form (:func:`_slid_in_plane`), joins it; the merged layer keeps the motion of the two that
     lays all of its points best (tight hit radius) net of its physics charge, as in the objective
     (the part's final registration refines it). O(L^2 P log N)."""
     layers = sorted(layers, key=lambda layer: -(len(layer.start) + len(layer.end)))
@@ -515,8 +517,8 @@ def _merge_agreeing(ratings: _Ratings, layers: list[MotionLayer]) -> list[Motion
                 big, small = layers[a], layers[b]
                 if not _touching(ratings, big, small, radius):
                     continue
-                if (_hit_share(ratings, big.transform, small.start, small.end, radius) >= MERGE_HIT_SHARE
-                        and not _own_motion(ratings, big, small)):
+                if ((_hit_share(ratings, big.transform, small.start, small.end, radius) >= MERGE_HIT_SHARE
+                        and not _own_motion(ratings, big, small)) or _slid_in_plane(ratings, big, small)):
                     start_idx, end_idx = np.union1d(big.start, small.start), np.union1d(big.end, small.end)
                     # The merged layer follows whichever motion lays all of its points best.
                     keep = max((big, small), key=lambda layer: _hit_share(ratings, layer.transform, start_idx,
@@ -528,6 +530,35 @@ def _merge_agreeing(ratings: _Ratings, layers: list[MotionLayer]) -> list[Motion
             if merged:
                 break
     return layers
+
+
+IN_PLANE_SAME_TURN_DEG = 2.0  # two motions of one slab turn alike within this ...
+IN_PLANE_MAX_SINE = 0.26      # ... and differ by a shift within 15 deg of the slab's plane
+
+
+def _slid_in_plane(ratings: _Ratings, big: MotionLayer, small: MotionLayer) -> bool:
+    """Are two touching layers one slab whose two motions differ only by a shift in its own
+    plane? A flat lid slid within its plane still lands on itself, so two motions with the same
+    turn and translations a fifth of the lid apart each claim a patch of it (a clean laptop without
+    masks came out as two lids, share 0.58 < ``MERGE_HIT_SHARE``). Twin drawers side by side are
+    not: their fronts are coplanar but their travels differ along the fronts' normal. O(P) for
+    the P points of both layers' start states."""
+    relative = np.linalg.inv(big.transform) @ small.transform
+    if motion_size(relative)[0] > IN_PLANE_SAME_TURN_DEG:
+        return False
+    start = ratings.start.points[np.union1d(big.start, small.start)]
+    end = ratings.end.points[np.union1d(big.end, small.end)]
+    if len(start) < 30 or len(end) < 30:
+        return False
+    centre = end.mean(axis=0)
+    _, singular, axes = np.linalg.svd(end - centre, full_matrices=False)
+    if singular[2] > SLAB_THICKNESS_SHARE * singular[1]:
+        return False
+    # where the two motions put the start part's centroid, in the end state's slab frame
+    origin = np.append(start.mean(axis=0), 1.0)
+    shift = (small.transform @ origin - big.transform @ origin)[:3]
+    length = float(np.linalg.norm(shift))
+    return length == 0.0 or abs(float(axes[2] @ shift)) <= IN_PLANE_MAX_SINE * length
 
 
 OWN_MOTION_MARGIN = 0.25    # a layer laying this much more of its points than a neighbour's motion is its own part
