@@ -49,6 +49,20 @@ def pca_normals(points: np.ndarray, positions: np.ndarray, neighbours: int,
     return np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))[1][:, :, 0]
 
 
+SLAB_THICKNESS_SHARE = 0.3  # a slab (door, lid): third principal extent at most this share of the second
+
+
+def slab_axes(points: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """(centre (3,), axes (3, 3)) of ``points`` (N, 3) when they form a slab -- the smallest RMS
+    principal extent at most ``SLAB_THICKNESS_SHARE`` of the middle one -- else None. axes: rows,
+    principal directions by decreasing extent (row 2 = the slab's normal). O(N)."""
+    centre = points.mean(axis=0)
+    if len(points) < 3:   # fewer points than dimensions: flat by construction
+        return centre, np.linalg.svd(points - centre, full_matrices=True)[2]
+    _, singular, axes = np.linalg.svd(points - centre, full_matrices=False)
+    return (centre, axes) if singular[2] <= SLAB_THICKNESS_SHARE * singular[1] else None
+
+
 def radius_components(points: np.ndarray, link_radius: float) -> np.ndarray:
     """Connected components of the radius graph of ``points`` (N, 3): (N,) int64 component label
     per point, 0..k-1; points closer than ``link_radius`` (same units) are linked. O(N log N + E)."""

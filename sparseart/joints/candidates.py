@@ -9,7 +9,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from sparseart.geometry.clouds import median_spacing
+from sparseart.geometry.clouds import median_spacing, slab_axes
 from sparseart.geometry.transforms import apply_transform, axis_angle_deg, make_transform
 from sparseart.joints.fit import FitConfig, fit_joint
 from sparseart.joints.reliability import HALF_TURN_DEG
@@ -225,7 +225,7 @@ def hinge_seed(part_start: np.ndarray, part_end: np.ndarray, seed: int = 0) -> n
     parallel. part_start (N, 3), part_end (M, 3) float64, one frame; unit-free (thresholds in
     point spacings). O((N + M) log(N + M) + R S) for R RANSAC rounds over S <= 5000 points.
     """
-    if not _is_slab(part_start) or len(part_end) < 10:
+    if slab_axes(part_start) is None or len(part_end) < 10:
         return None
     rng = np.random.default_rng(seed)
     spacing = max(median_spacing(part_start, sample=2000, rng=rng), median_spacing(part_end, sample=2000, rng=rng))
@@ -281,17 +281,7 @@ def _ransac_plane(points: np.ndarray, distance: float,
     return np.linalg.svd(inliers - centre, full_matrices=False)[2][2], centre
 
 
-def _is_slab(points: np.ndarray) -> bool:
-    """True when the smallest RMS extent is below ``SLAB_THICKNESS_RATIO`` of the middle one."""
-    centred = points - points.mean(axis=0)
-    extents = np.sqrt(np.maximum(np.linalg.eigvalsh(centred.T @ centred / len(centred)), 0.0))
-    return bool(extents[0] <= SLAB_THICKNESS_RATIO * extents[1])
-
-
 COMPARABLE_RESIDUAL_RATIO = 1.5  # fits within this residual ratio of the best explain the data alike
-
-
-SLAB_THICKNESS_RATIO = 0.3       # smallest/middle extent below this: a slab (door, lid)
 
 
 def mirror_seed(joint: JointEstimate, start_points: np.ndarray) -> np.ndarray | None:
@@ -303,7 +293,7 @@ def mirror_seed(joint: JointEstimate, start_points: np.ndarray) -> np.ndarray | 
     if joint.type != "revolute":
         return None
     centre = start_points.mean(axis=0)
-    if not _is_slab(start_points) and np.degrees(abs(joint.angle or 0.0)) <= HALF_TURN_DEG:
+    if slab_axes(start_points) is None and np.degrees(abs(joint.angle or 0.0)) <= HALF_TURN_DEG:
         return None
     flip = np.eye(4)
     flip[:3, :3] = Rotation.from_rotvec(np.pi * joint.axis).as_matrix()

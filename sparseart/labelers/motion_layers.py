@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..geometry.clouds import radius_components
+from ..geometry.clouds import radius_components, slab_axes
 from .consistency import HIDDEN, VIOLATION, StateViews
 from .correspondence import (PHYSICS_WEIGHT, SLIDE_MAX_DEG, SLIDE_WEIGHT, PairContext, apply, blocked_step_share, motion_size,
                              refine_icp, register_sets, slide_direction, slide_sine_points)
@@ -56,7 +56,6 @@ PRICE_SHARE = 0.03          # a motion (part) must explain more than this share 
 MAX_TURN_DEG = 150.0        # candidate motions turning more are left out (real joints rarely do)
 MERGE_HIT_SHARE = 0.6      # a touching layer the larger one's motion explains this much joins it
 MIRROR_MIN_TURN_DEG = 10.0  # turning motions of slabs get their mirrored twins as candidates
-SLAB_THICKNESS_SHARE = 0.3  # a slab: third principal extent below this share of the second
 HIT_RADIUS_SHARE = 0.5      # a hit lands within this share of the inlier radius (a motion blending
                             # two twins' slides a radius apart misses both)
 
@@ -75,11 +74,10 @@ def _slab_mirrors(ratings: "_Ratings", k: int) -> list[np.ndarray]:
     own = ratings.start_moved[row[:len(ratings.start_moved)] >= 1.0]
     if len(own) < 30:
         return []
-    points = ratings.start.points[own]
-    centre = points.mean(axis=0)
-    _, singular, axes = np.linalg.svd(points - centre, full_matrices=False)
-    if singular[2] > SLAB_THICKNESS_SHARE * singular[1]:
+    slab = slab_axes(ratings.start.points[own])
+    if slab is None:
         return []
+    centre, axes = slab
     result = []
     for axis in axes[:2]:
         half = np.eye(4)
@@ -542,7 +540,7 @@ def _slid_in_plane(ratings: _Ratings, big: MotionLayer, small: MotionLayer) -> b
     turn and translations a fifth of the lid apart each claim a patch of it (a clean laptop without
     masks came out as two lids, share 0.58 < ``MERGE_HIT_SHARE``). Twin drawers side by side are
     not: their fronts are coplanar but their travels differ along the fronts' normal. O(P) for
-    the P points of both layers' start states."""
+    the P points of both layers."""
     relative = np.linalg.inv(big.transform) @ small.transform
     if motion_size(relative)[0] > IN_PLANE_SAME_TURN_DEG:
         return False
@@ -550,15 +548,14 @@ def _slid_in_plane(ratings: _Ratings, big: MotionLayer, small: MotionLayer) -> b
     end = ratings.end.points[np.union1d(big.end, small.end)]
     if len(start) < 30 or len(end) < 30:
         return False
-    centre = end.mean(axis=0)
-    _, singular, axes = np.linalg.svd(end - centre, full_matrices=False)
-    if singular[2] > SLAB_THICKNESS_SHARE * singular[1]:
+    slab = slab_axes(end)
+    if slab is None:
         return False
     # where the two motions put the start part's centroid, in the end state's slab frame
     origin = np.append(start.mean(axis=0), 1.0)
     shift = (small.transform @ origin - big.transform @ origin)[:3]
     length = float(np.linalg.norm(shift))
-    return length == 0.0 or abs(float(axes[2] @ shift)) <= IN_PLANE_MAX_SINE * length
+    return length == 0.0 or abs(float(slab[1][2] @ shift)) <= IN_PLANE_MAX_SINE * length
 
 
 OWN_MOTION_MARGIN = 0.25    # a layer laying this much more of its points than a neighbour's motion is its own part
