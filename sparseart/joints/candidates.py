@@ -10,7 +10,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from sparseart.geometry.clouds import median_spacing, slab_axes
-from sparseart.geometry.transforms import apply_transform, axis_angle_deg, make_transform
+from sparseart.geometry.planes import best_by_truncated_chamfer, hinge_turns, ransac_plane
+from sparseart.geometry.transforms import axis_angle_deg
 from sparseart.joints.fit import FitConfig, fit_joint
 from sparseart.joints.reliability import HALF_TURN_DEG
 from sparseart.joints.uncertainty import frame_misfit
@@ -209,13 +210,13 @@ def static_axis_seeds(joint: JointEstimate, static_points: np.ndarray | None) ->
 HINGE_PLANE_SPACINGS = 4.0      # RANSAC plane inlier distance of the hinge seed, in point spacings
 HINGE_MIN_TURN_DEG = 5.0        # planes closer to parallel than this: no hinge seed (a slide)
 HINGE_LOSS_CLIP_SPACINGS = 3.0  # truncation of the Chamfer loss that ranks the hinge seeds
-HINGE_RANSAC_ITERATIONS = 300
 
 
 def hinge_seed(part_start: np.ndarray, part_end: np.ndarray, seed: int = 0) -> np.ndarray | None:
     """A closed-form revolute seed for a slab (door, lid): the line where the part's start and end
     planes meet, turned by theta or pi - theta (theta between the plane normals), either sign; the
-    one of these four motions with the lowest truncated Chamfer loss, as a (4, 4) start->end map.
+    one of these four motions with the lowest truncated Chamfer loss, as a (4, 4) start->end map
+    (:mod:`~sparseart.geometry.planes`).
 
     Why: a thin slab has several near-equal minima (the true turn, its mirror about the slab's
     mid-line, a flip about the perpendicular axis), and a fit started from a labeler's motion of
@@ -229,56 +230,15 @@ def hinge_seed(part_start: np.ndarray, part_end: np.ndarray, seed: int = 0) -> n
         return None
     rng = np.random.default_rng(seed)
     spacing = max(median_spacing(part_start, sample=2000, rng=rng), median_spacing(part_end, sample=2000, rng=rng))
-    planes = [_ransac_plane(points, HINGE_PLANE_SPACINGS * spacing, rng) for points in (part_start, part_end)]
+    planes = [ransac_plane(points, HINGE_PLANE_SPACINGS * spacing, rng) for points in (part_start, part_end)]
     if any(plane is None for plane in planes):
         return None
-    (normal_s, centre_s), (normal_e, centre_e) = planes
-    axis = np.cross(normal_s, normal_e)
-    if np.linalg.norm(axis) < np.sin(np.radians(HINGE_MIN_TURN_DEG)):
+    turns = hinge_turns(planes[0], planes[1], HINGE_MIN_TURN_DEG)
+    if not turns:
         return None
-    axis /= np.linalg.norm(axis)
-    system = np.stack([normal_s, normal_e, axis])
-    point = np.linalg.solve(system, [normal_s @ centre_s, normal_e @ centre_e, axis @ (centre_s + centre_e) / 2])
-    theta = float(np.arccos(np.clip(abs(normal_s @ normal_e), 0.0, 1.0)))
-    seeds = []
-    for angle in (theta, np.pi - theta, -theta, theta - np.pi):
-        rotation = Rotation.from_rotvec(axis * angle).as_matrix()
-        seeds.append(make_transform(rotation, point - rotation @ point))
-    clip = HINGE_LOSS_CLIP_SPACINGS * spacing
     start_sample = part_start[rng.choice(len(part_start), min(3000, len(part_start)), replace=False)]
     end_sample = part_end[rng.choice(len(part_end), min(3000, len(part_end)), replace=False)]
-    end_tree = cKDTree(end_sample)
-
-    def loss(transform: np.ndarray) -> float:
-        moved = apply_transform(transform, start_sample)
-        forward = np.minimum(end_tree.query(moved, distance_upper_bound=clip)[0], clip)
-        backward = np.minimum(cKDTree(moved).query(end_sample, distance_upper_bound=clip)[0], clip)
-        return float(forward.mean() + backward.mean())
-
-    return min(seeds, key=loss)
-
-
-def _ransac_plane(points: np.ndarray, distance: float,
-                  rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
-    """(unit normal, centroid) of the plane most points lie within ``distance`` of (RANSAC on at
-    most 5000 points, least-squares refit on the inliers); None below 10 points or 3 inliers."""
-    sample = points[rng.choice(len(points), min(5000, len(points)), replace=False)]
-    if len(sample) < 10:
-        return None
-    triples = sample[rng.integers(0, len(sample), size=(HINGE_RANSAC_ITERATIONS, 3))]
-    normals = np.cross(triples[:, 1] - triples[:, 0], triples[:, 2] - triples[:, 0])
-    norms = np.linalg.norm(normals, axis=1)
-    keep = norms > 1e-12
-    if not keep.any():
-        return None
-    normals, triples = normals[keep] / norms[keep, None], triples[keep]
-    support = (np.abs(sample @ normals.T - np.einsum("kj,kj->k", normals, triples[:, 0])) < distance).sum(axis=0)
-    best = int(np.argmax(support))
-    inliers = points[np.abs((points - triples[best, 0]) @ normals[best]) < distance]
-    if len(inliers) < 3:
-        return None
-    centre = inliers.mean(axis=0)
-    return np.linalg.svd(inliers - centre, full_matrices=False)[2][2], centre
+    return best_by_truncated_chamfer(turns, start_sample, end_sample, HINGE_LOSS_CLIP_SPACINGS * spacing)
 
 
 COMPARABLE_RESIDUAL_RATIO = 1.5  # fits within this residual ratio of the best explain the data alike
