@@ -307,6 +307,23 @@ def test_drawer_slides_along_the_body_axis_without_masks(tmp_path):
     assert len(rows) == 1 and rows[0]["type_correct"] and rows[0]["axis_deg"] < 2.0, rows
 
 
+def _robot_run(tmp_path, name: str, setting_name: str):
+    """Render PartNet object ``name`` under bench setting ``setting_name`` (one posed view per
+    state, realism knobs) and run it without masks: (result, scene, gt, evaluated rows)."""
+    import sparseart
+    from sparseart.bench.evaluate import evaluate
+    from sparseart.bench.grid import grid_settings
+    from sparseart.bench.objects import render_cached
+    from sparseart.io.scene import load_scene
+
+    setting = next(s for s in grid_settings()[0] if s.name == setting_name)
+    scene_dir = tmp_path / name
+    gt, _ = render_cached(PARTNET_DIR / name, scene_dir, setting)
+    result = sparseart.run(scene_dir, use_masks=False)
+    scene = load_scene(scene_dir)
+    return result, scene, gt, evaluate(result, scene, gt)
+
+
 @pytest.mark.skipif(not (PARTNET_DIR / "refrigerator_11231").is_dir(),
                     reason=f"refrigerator_11231 not found in {PARTNET_DIR}")
 def test_a_hand_in_one_state_does_not_join_the_door_without_masks(tmp_path):
@@ -315,18 +332,9 @@ def test_a_hand_in_one_state_does_not_join_the_door_without_masks(tmp_path):
     the cabinet, hidden, like the door's own sides; it touches none of the door's hits. It joined
     the door (5.8k arm points against 1.3k door points), the fit's cleaning then kept the arm
     and dropped the door, and the joint came out a slide 62 deg off."""
-    import sparseart
-    from sparseart.bench.evaluate import evaluate, true_groups
-    from sparseart.bench.grid import grid_settings
-    from sparseart.bench.objects import render_cached
-    from sparseart.io.scene import load_scene
+    from sparseart.bench.evaluate import true_groups
 
-    setting = next(s for s in grid_settings()[0] if s.name == "robot-1view")
-    scene_dir = tmp_path / "fridge"
-    gt, _ = render_cached(PARTNET_DIR / "refrigerator_11231", scene_dir, setting)
-    result = sparseart.run(scene_dir, use_masks=False)
-    scene = load_scene(scene_dir)
-    rows = evaluate(result, scene, gt)
+    result, scene, gt, rows = _robot_run(tmp_path, "refrigerator_11231", "robot-1view")
     assert len(rows) == 1 and rows[0]["type_correct"] and rows[0]["axis_deg"] < 10.0, rows
     groups = true_groups(result.end_cloud, scene, gt)
     part = result.labels.end_part == rows[0]["part"]
@@ -380,17 +388,7 @@ def test_a_lid_turned_far_is_found_from_its_planes_without_masks(tmp_path):
     Registration from identity or from the moved pieces' shapes offered only turns of 0.5-16
     deg, and the lid came out as two slides 88 deg off; the turn about the line where its start
     and end planes meet is its hinge (labelers.motion_layers._plane_hinges)."""
-    import sparseart
-    from sparseart.bench.evaluate import evaluate
-    from sparseart.bench.grid import grid_settings
-    from sparseart.bench.objects import render_cached
-    from sparseart.io.scene import load_scene
-
-    setting = next(s for s in grid_settings()[0] if s.name == "robot-sensor-1view")
-    scene_dir = tmp_path / "box"
-    gt, _ = render_cached(PARTNET_DIR / "box_rotate_100221", scene_dir, setting)
-    result = sparseart.run(scene_dir, use_masks=False)
-    rows = evaluate(result, load_scene(scene_dir), gt)
+    rows = _robot_run(tmp_path, "box_rotate_100221", "robot-sensor-1view")[3]
     assert len(rows) == 1 and rows[0]["pred_type"] == "revolute" and rows[0]["axis_deg"] < 5.0, rows
 
 
@@ -427,15 +425,5 @@ def test_an_oven_door_beats_a_turn_no_hinge_makes_without_masks(tmp_path):
     axis (no hinge does) out-voted the door's turn (shift 0.00, axis 0.07 radii from the oven)
     and the joint came out 42 deg off; a turn must be a hinge on the static body
     (labelers.motion_layers._detached)."""
-    import sparseart
-    from sparseart.bench.evaluate import evaluate
-    from sparseart.bench.grid import grid_settings
-    from sparseart.bench.objects import render_cached
-    from sparseart.io.scene import load_scene
-
-    setting = next(s for s in grid_settings()[0] if s.name == "robot-sensor-1view")
-    scene_dir = tmp_path / "oven"
-    gt, _ = render_cached(PARTNET_DIR / "oven_7201", scene_dir, setting)
-    result = sparseart.run(scene_dir, use_masks=False)
-    rows = evaluate(result, load_scene(scene_dir), gt)
+    rows = _robot_run(tmp_path, "oven_7201", "robot-sensor-1view")[3]
     assert len(rows) == 1 and rows[0]["pred_type"] == "revolute" and rows[0]["axis_deg"] < 10.0, rows
