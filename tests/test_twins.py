@@ -346,7 +346,7 @@ def test_slide_votes_count_exactly_what_a_query_per_length_counts():
     """The slide vote (one 2-D tube query per point instead of one 3-D query per point and length)
     gives the same count at every length as landing each slid point on its nearest target."""
     from scipy.spatial import cKDTree
-    from sparseart.labelers.motion_layers import _slide_votes
+    from sparseart.labelers.motion_candidates import slide_votes
 
     rng = np.random.default_rng(0)
     for _ in range(10):
@@ -358,7 +358,7 @@ def test_slide_votes_count_exactly_what_a_query_per_length_counts():
         lengths = np.concatenate([-steps[::-1], steps])
         tree = cKDTree(targets)
         brute = [(tree.query(points + d * direction, distance_upper_bound=radius)[0] < radius).sum() for d in lengths]
-        assert np.array_equal(_slide_votes(points, tree, direction, lengths, radius), brute)
+        assert np.array_equal(slide_votes(points, tree, direction, lengths, radius), brute)
 
 
 @requires_laptop
@@ -387,7 +387,7 @@ def test_a_lid_turned_far_is_found_from_its_planes_without_masks(tmp_path):
     by 75 deg towards the camera, seen from above closed and face-on open, with an arm on it.
     Registration from identity or from the moved pieces' shapes offered only turns of 0.5-16
     deg, and the lid came out as two slides 88 deg off; the turn about the line where its start
-    and end planes meet is its hinge (labelers.motion_layers._plane_hinges)."""
+    and end planes meet is its hinge (labelers.motion_candidates.plane_hinges)."""
     rows = _robot_run(tmp_path, "box_rotate_100221", "robot-sensor-1view")[3]
     assert len(rows) == 1 and rows[0]["pred_type"] == "revolute" and rows[0]["axis_deg"] < 5.0, rows
 
