@@ -399,7 +399,7 @@ def test_a_turn_no_hinge_on_the_static_body_makes_is_detached():
     from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
     from sparseart.geometry.transforms import make_transform
-    from sparseart.labelers.motion_layers import _detached
+    from sparseart.labelers.motion_ratings import detached
 
     rng = np.random.default_rng(0)
     for scale in (1.0, 1000.0):
@@ -412,10 +412,10 @@ def test_a_turn_no_hinge_on_the_static_body_makes_is_detached():
             pivot = scale * np.asarray(pivot, dtype=float)
             return make_transform(rotation, pivot - rotation @ pivot + scale * np.array([0.0, shift, 0.0]))
 
-        assert not _detached(turn(70.0, [0.3, 0.0, 0.0]), lid, tree)             # hinge on the back edge
-        assert _detached(turn(70.0, [0.3, 0.0, 0.0], shift=0.4), lid, tree)      # screwed along its axis
-        assert _detached(turn(70.0, [1.5, 0.0, 1.0]), lid, tree)                 # about a line in the air
-        assert not _detached(turn(5.0, [1.5, 0.0, 1.0]), lid, tree)              # a tilt: not judged here
+        assert not detached(turn(70.0, [0.3, 0.0, 0.0]), lid, tree)             # hinge on the back edge
+        assert detached(turn(70.0, [0.3, 0.0, 0.0], shift=0.4), lid, tree)      # screwed along its axis
+        assert detached(turn(70.0, [1.5, 0.0, 1.0]), lid, tree)                 # about a line in the air
+        assert not detached(turn(5.0, [1.5, 0.0, 1.0]), lid, tree)              # a tilt: not judged here
 
 
 @pytest.mark.skipif(not (PARTNET_DIR / "oven_7201").is_dir(), reason=f"oven_7201 not found in {PARTNET_DIR}")
@@ -424,6 +424,6 @@ def test_an_oven_door_beats_a_turn_no_hinge_makes_without_masks(tmp_path):
     pulled down with an arm on it. A 144 deg turn that also shifts 0.65 part radii along its own
     axis (no hinge does) out-voted the door's turn (shift 0.00, axis 0.07 radii from the oven)
     and the joint came out 42 deg off; a turn must be a hinge on the static body
-    (labelers.motion_layers._detached)."""
+    (labelers.motion_ratings.detached)."""
     rows = _robot_run(tmp_path, "oven_7201", "robot-sensor-1view")[3]
     assert len(rows) == 1 and rows[0]["pred_type"] == "revolute" and rows[0]["axis_deg"] < 10.0, rows

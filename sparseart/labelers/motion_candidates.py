@@ -2,12 +2,10 @@
 the moved pieces: the mirrored twins of a turning slab, slides along the rated slides' directions
 (twin drawers) and along the static body's own axes (a drawer pulled towards the camera), and
 turns about the lines where a moved plane of the start meets one of the end (a lid turned far).
-Each takes the ratings of the moved points (``motion_layers._Ratings``) and returns (4, 4)
+Each takes the ratings of the moved points (:class:`~.motion_ratings.Ratings`) and returns (4, 4)
 start->end transforms; the caller tightens them, drops those it knows, and its selection decides.
 """
 from __future__ import annotations
-
-from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -16,9 +14,7 @@ from ..geometry.clouds import radius_components, slab_axes
 from ..geometry.planes import best_by_truncated_chamfer, hinge_turns, ransac_plane
 from ..types import LabelledCloud
 from .correspondence import SLIDE_MAX_DEG, motion_size
-
-if TYPE_CHECKING:
-    from .motion_layers import _Ratings as Ratings
+from .motion_ratings import Ratings
 
 MIRROR_MIN_TURN_DEG = 10.0  # turning motions of slabs get their mirrored twins as candidates
 

@@ -45,68 +45,19 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from ..geometry.clouds import radius_components, slab_axes
-from .consistency import HIDDEN, VIOLATION, StateViews
-from .correspondence import (PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, blocked_step_share, motion_size,
-                             refine_icp, register_sets, slide_direction, slide_sine_points)
+from .correspondence import PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, motion_size, register_sets, slide_direction
 from .motion_candidates import (PLANE_HINGE_SAME_TURN_DEG, frame_slides, plane_hinges, slab_mirrors, turn_between,
                                 twin_slides)
+from .motion_ratings import Ratings
 
-HIDDEN_CREDIT = 0.5
-TIGHTEN_POINTS = 600
-PHYSICS_SAMPLE = 400
-SAME_MOTION_RADII = 1.0     # motions moving the points within this many radii of each other are one
 RESIDUAL_ROUNDS = 2
 PIECE_SHARE = 0.03          # moved pieces at least this share of the moved points are registered on their own
 LAYER_MIN_SHARE = 0.1       # a layer must hold this share of each state's moved points
 PRICE_SHARE = 0.03          # a motion (part) must explain more than this share of the moved points
 MAX_TURN_DEG = 150.0        # candidate motions turning more are left out (real joints rarely do)
 MERGE_HIT_SHARE = 0.6      # a touching layer the larger one's motion explains this much joins it
-HIT_RADIUS_SHARE = 0.5      # a hit lands within this share of the inlier radius (a motion blending
-                            # two twins' slides a radius apart misses both)
-
-
-ANCHOR_MIN_TURN_DEG = 10.0  # turns at least this large must be a hinge on the static body: ...
-ANCHOR_MAX_PITCH = 0.5      # ... shift along their own axis at most this many part radii ...
-ANCHOR_MAX_GAP = 2.0        # ... about an axis passing within this many part radii of the static points
-ANCHOR_LINE_SAMPLES = 25
-STATIC_SAMPLE = 20000
-
-
-def _detached(transform: np.ndarray, points: np.ndarray, static_tree: cKDTree | None) -> bool:
-    """Is a turning motion one that no hinge on the static body makes? Its screw axis (the
-    rotation axis through the points it leaves fixed) must carry no shift along itself beyond
-    ``ANCHOR_MAX_PITCH`` part radii (a hinge turns, it does not screw) and, across the part's
-    extent along it, pass within ``ANCHOR_MAX_GAP`` part radii of the static points (median
-    nearest distance: a hinge is attached to its parent).
-
-    Why: an arm or hand present in one state only is carried by some registration onto the
-    other state's occluded patch, and such a motion out-voted the true one (measured on
-    robot-shaped renders with sensor depth: an arm's 79 deg turn shifting 7.2 part radii along
-    its axis was chosen over a door's 32 deg hinge with pitch 0.00 and gap 0.14; a box lid, a
-    microwave door and a washing machine lid lost alike to turns with gaps of 3.3-8.8 radii;
-    seven true hinges measured pitch <= 0.03 and gap <= 0.85, the largest the real laptop's).
-    points: (P, 3) the motion's hit points, start frame; part radius = their RMS distance to
-    their centroid. Turns below ``ANCHOR_MIN_TURN_DEG`` (a slide with a tilt of noise has a far,
-    ill-defined axis) and empty inputs are never detached. O(P + 25 log S)."""
-    if static_tree is None or len(points) < 10:
-        return False
-    rotvec = Rotation.from_matrix(transform[:3, :3]).as_rotvec()
-    if np.degrees(np.linalg.norm(rotvec)) < ANCHOR_MIN_TURN_DEG:
-        return False
-    axis = rotvec / np.linalg.norm(rotvec)
-    centre = points.mean(axis=0)
-    radius = max(float(np.sqrt(((points - centre) ** 2).sum(axis=1).mean())), 1e-12)
-    shift = transform[:3, 3]
-    pitch = abs(float(shift @ axis))
-    # the fixed line: (I - R) p = t - (t . a) a, least squares (the system is rank 2)
-    pivot = np.linalg.lstsq(np.eye(3) - transform[:3, :3], shift - (shift @ axis) * axis, rcond=None)[0]
-    offsets = (points - pivot) @ axis
-    line = pivot + np.linspace(offsets.min(), offsets.max(), ANCHOR_LINE_SAMPLES)[:, None] * axis
-    gap = float(np.median(static_tree.query(line)[0]))
-    return pitch > ANCHOR_MAX_PITCH * radius or gap > ANCHOR_MAX_GAP * radius
 
 
 @dataclass
@@ -119,129 +70,6 @@ class MotionLayer:
     start: np.ndarray
     end: np.ndarray
     charge: float = 0.0     # the objective's physics charge per claimed point (blocked share, slide sine)
-
-
-class _Ratings:
-    """Ratings of the moved points of both states under the motions."""
-
-    def __init__(self, context: PairContext, start_moved: np.ndarray, end_moved: np.ndarray,
-                 unseen: tuple[np.ndarray, np.ndarray] | None = None) -> None:
-        self.context = context
-        self.start, self.end = context.start, context.end
-        self.start_moved, self.end_moved = start_moved, end_moved
-        if unseen is None:
-            unseen = (np.zeros(len(start_moved), dtype=bool), np.zeros(len(end_moved), dtype=bool))
-        self.start_unseen, self.end_unseen = (np.asarray(u, dtype=bool) for u in unseen)
-        self.unseen = np.concatenate([self.start_unseen, self.end_unseen])
-        self.radius = HIT_RADIUS_SHARE * context.radius
-        self.start_tree = cKDTree(self.start.points[start_moved])
-        self.end_tree = cKDTree(self.end.points[end_moved])
-        self.start_all = cKDTree(self.start.points)
-        self.end_all = cKDTree(self.end.points)
-        self.motions: list[np.ndarray] = []
-        self.rows: list[np.ndarray] = []      # (N_s + N_e,) ratings per motion
-        self.physics: list[float] = []
-        self.slides: list[float] = []
-        self.detached: list[bool] = []       # a turn no hinge on the static body makes (:func:`_detached`)
-        self._static_tree: cKDTree | None = None
-
-    def _rate(self, points: np.ndarray, tree: cKDTree, views: StateViews, own_unseen: np.ndarray,
-              target_unseen: np.ndarray) -> np.ndarray:
-        distance, index = tree.query(points, k=1, distance_upper_bound=self.radius)
-        hits = distance < self.radius
-        # Unseen points (hidden in the other state, no vote in the split) earn nothing from each
-        # other: two occluded table patches match under any slide along the table.
-        hits[hits] &= ~(own_unseen[hits] & target_unseen[index[hits]])
-        rating = hits.astype(np.float64)
-        if views:
-            labels = views.classify(points[~hits])
-            rating[~hits] = np.where(labels == HIDDEN, HIDDEN_CREDIT, np.where(labels == VIOLATION, -1.0, 0.0))
-        # An unseen point carried to where the other state cannot see either: no evidence at all.
-        rating[own_unseen & (rating == HIDDEN_CREDIT)] = 0.0
-        return rating
-
-    def rate(self, transform: np.ndarray) -> np.ndarray:
-        forward = self._rate(apply(transform, self.start.points[self.start_moved]), self.end_tree,
-                             self.context.end_views, self.start_unseen, self.end_unseen)
-        backward = self._rate(apply(np.linalg.inv(transform), self.end.points[self.end_moved]), self.start_tree,
-                              self.context.start_views, self.end_unseen, self.start_unseen)
-        return np.concatenate([forward, backward])
-
-    def tighten(self, transform: np.ndarray) -> np.ndarray:
-        """Refine a motion on the moved points it carries onto each other, with a tight trimming
-        radius (a motion blending two twins' slides settles on the better supported one)."""
-        row = self.rate(transform)
-        n_start = len(self.start_moved)
-        own_s = self.start_moved[row[:n_start] >= 1.0]
-        own_e = self.end_moved[row[n_start:] >= 1.0]
-        if len(own_s) < 10 or len(own_e) < 10:
-            return transform
-        own_s = own_s[:: max(1, len(own_s) // TIGHTEN_POINTS)]
-        own_e = own_e[:: max(1, len(own_e) // TIGHTEN_POINTS)]
-        return refine_icp(self.start.points[own_s], self.end.points[own_e], transform, self.radius,
-                          schedule=(1.0, 0.5), iterations=6)
-
-    def known(self, transform: np.ndarray) -> bool:
-        """Is an equal motion (points moved within ``SAME_MOTION_RADII`` radii) already rated?"""
-        probe = self.start.points[self.start_moved[:: max(1, len(self.start_moved) // 500)]]
-        for other in self.motions:
-            gap = np.linalg.norm(apply(transform, probe) - apply(other, probe), axis=1)
-            if len(gap) and np.median(gap) < SAME_MOTION_RADII * self.radius:
-                return True
-        return False
-
-    def add(self, transform: np.ndarray, row: np.ndarray | None = None) -> None:
-        row = self.rate(transform) if row is None else row
-        n_start = len(self.start_moved)
-        own_s = self.start_moved[row[:n_start] >= 1.0]
-        own_e = self.end_moved[row[n_start:] >= 1.0]
-        self.motions.append(transform)
-        self.rows.append(row)
-        self.physics.append(self.blocked(transform, own_s, own_e, self.start_moved[row[:n_start] > 0],
-                                         self.end_moved[row[n_start:] > 0]))
-        self.slides.append(slide_sine_points(self.context, transform, self.start.points[own_s],
-                                             self.end.points[own_e]) if len(own_s) and len(own_e) else 0.0)
-        self.detached.append(_detached(transform, np.concatenate([self.start.points[own_s], apply(
-            np.linalg.inv(transform), self.end.points[own_e])]), self.static_tree()))
-
-    def static_tree(self) -> cKDTree | None:
-        """KD-tree of at most ``STATIC_SAMPLE`` of the start points that did not move (None when
-        fewer than 10)."""
-        if self._static_tree is None:
-            still = np.ones(len(self.start.points), dtype=bool)
-            still[self.start_moved] = False
-            points = self.start.points[still]
-            if len(points) < 10:
-                return None
-            self._static_tree = cKDTree(points[:: max(1, len(points) // STATIC_SAMPLE)])
-        return self._static_tree
-
-    def blocked(self, transform: np.ndarray, own_start: np.ndarray, own_end: np.ndarray, part_start: np.ndarray,
-                part_end: np.ndarray) -> float:
-        """Blocked-step share (:func:`~.correspondence.blocked_share`) of the motion's hit points
-        (own_*) in both states; the part's points (part_*: hit or hidden, they move along) are
-        told apart from obstacles by checking the 8 nearest neighbours of a stepped point, and a
-        step that meets a surface counts only when it runs into it, not along it (the normal of the
-        cloud there, :func:`~.correspondence.moves_into_surface`)."""
-        shares = []
-        for cloud, tree, owned, part, direction in ((self.start, self.start_all, own_start, part_start, 1.0),
-                                                    (self.end, self.end_all, own_end, part_end, -1.0)):
-            if len(owned) < 10:
-                shares.append(0.0)
-                continue
-            mask = np.zeros(len(cloud), dtype=bool)
-            mask[part] = True
-            mask[owned] = True
-            points = cloud.points[owned[:: max(1, len(owned) // PHYSICS_SAMPLE)]]
-
-            def near_other(p: np.ndarray, tree=tree, mask=mask) -> np.ndarray:
-                distance, index = tree.query(p, k=8, distance_upper_bound=self.radius)
-                found = distance < self.radius
-                index = np.where(found, index, 0)
-                return np.any(found & ~mask[index], axis=1)
-
-            shares.append(blocked_step_share(transform, direction, points, self.radius, near_other, surface=tree))
-        return float(np.mean(shares))
 
 
 def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.ndarray,
@@ -259,7 +87,7 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
     notes: list[str] = []
     if len(start_moved) == 0 or len(end_moved) == 0:
         return [], notes
-    ratings = _Ratings(context, start_moved, end_moved, unseen)
+    ratings = Ratings(context, start_moved, end_moved, unseen)
     rng = np.random.default_rng(context.seed + 7)
     pool = list(motions)
     big = max(min_points, int(PIECE_SHARE * (len(start_moved) + len(end_moved)) / 2))
@@ -334,9 +162,9 @@ def _objective(seen: np.ndarray, charges: np.ndarray, chosen: list[int], price: 
     return value
 
 
-def _select(ratings: _Ratings, price: float) -> list[int]:
+def _select(ratings: Ratings, price: float) -> list[int]:
     """Greedy forward selection, then single removals and swaps while the objective improves,
-    over the motions with more than ``price`` seen hits that are not :func:`_detached` (measured
+    over the motions with more than ``price`` seen hits that are not :func:`~.motion_ratings.detached` (measured
     on robot-shaped renders: a 23 deg turn with no hit and 2024 hidden points was chosen over a
     door's hinge with 776 hits, and then dropped as hitless, leaving no part). Ties go to the
     earlier motion (the assigned pairs' motions come first). The ratings of the seen points are
@@ -376,7 +204,7 @@ def _select(ratings: _Ratings, price: float) -> list[int]:
     return sorted(chosen)
 
 
-def _residual_pieces(ratings: _Ratings, chosen: list[int], radius: float,
+def _residual_pieces(ratings: Ratings, chosen: list[int], radius: float,
                      min_points: int) -> list[tuple[np.ndarray, np.ndarray]]:
     """Connected pieces of moved points no chosen motion explains (rating <= 0), each paired with
     the other state's unexplained moved points (all of its moved points when too few are left)."""
@@ -400,7 +228,7 @@ def _residual_pieces(ratings: _Ratings, chosen: list[int], radius: float,
     return pairs
 
 
-def _hit_share(ratings: _Ratings, transform: np.ndarray, start_idx: np.ndarray, end_idx: np.ndarray,
+def _hit_share(ratings: Ratings, transform: np.ndarray, start_idx: np.ndarray, end_idx: np.ndarray,
                radius: float) -> float:
     """Share of the given moved points (work indices) that ``transform`` carries within ``radius``
     of the other state's moved points (both directions). O(P log N)."""
@@ -413,7 +241,7 @@ def _hit_share(ratings: _Ratings, transform: np.ndarray, start_idx: np.ndarray, 
     return float((forward.sum() + backward.sum()) / (len(start_idx) + len(end_idx)))
 
 
-def _merge_agreeing(ratings: _Ratings, layers: list[MotionLayer]) -> list[MotionLayer]:
+def _merge_agreeing(ratings: Ratings, layers: list[MotionLayer]) -> list[MotionLayer]:
     """Layers of one part: the selection rates hits with a tight radius (twins a radius apart stay
     apart), so one part whose registration is a little off in different places can come out as
     several nearly equal motions, each claiming a patch. A layer whose points the motion of a
@@ -451,7 +279,7 @@ IN_PLANE_SAME_TURN_DEG = 2.0  # two motions of one slab turn alike within this .
 IN_PLANE_MAX_SINE = 0.26      # ... and differ by a shift within 15 deg of the slab's plane
 
 
-def _slid_in_plane(ratings: _Ratings, big: MotionLayer, small: MotionLayer) -> bool:
+def _slid_in_plane(ratings: Ratings, big: MotionLayer, small: MotionLayer) -> bool:
     """Are two touching layers one slab whose two motions differ only by a shift in its own
     plane? A flat lid slid within its plane still lands on itself, so two motions with the same
     turn and translations a fifth of the lid apart each claim a patch of it (a clean laptop without
@@ -478,7 +306,7 @@ def _slid_in_plane(ratings: _Ratings, big: MotionLayer, small: MotionLayer) -> b
 OWN_MOTION_MARGIN = 0.25    # a layer laying this much more of its points than a neighbour's motion is its own part
 
 
-def _own_motion(ratings: _Ratings, big: MotionLayer, small: MotionLayer) -> bool:
+def _own_motion(ratings: Ratings, big: MotionLayer, small: MotionLayer) -> bool:
     """Does ``small`` slide by its own motion? True when both slide and its motion lays at least
     ``OWN_MOTION_MARGIN`` more of its points (tight hit radius) than ``big``'s does. One part seen
     as patches is laid about as well by either patch's motion; twin drawers touching side by side,
@@ -493,7 +321,7 @@ def _own_motion(ratings: _Ratings, big: MotionLayer, small: MotionLayer) -> bool
     return own - other >= OWN_MOTION_MARGIN
 
 
-def _touching(ratings: _Ratings, a: MotionLayer, b: MotionLayer, radius: float) -> bool:
+def _touching(ratings: Ratings, a: MotionLayer, b: MotionLayer, radius: float) -> bool:
     """Do two layers touch (within ``ADJACENT_RADII`` radii) in either state?"""
     for cloud, ia, ib in ((ratings.start, a.start, b.start), (ratings.end, a.end, b.end)):
         if len(ia) and len(ib):
@@ -504,7 +332,7 @@ def _touching(ratings: _Ratings, a: MotionLayer, b: MotionLayer, radius: float) 
     return False
 
 
-def _assign_points(ratings: _Ratings, chosen: list[int]) -> list[MotionLayer]:
+def _assign_points(ratings: Ratings, chosen: list[int]) -> list[MotionLayer]:
     """Every moved point follows the motion rating it best (hits first); ties and hidden-only
     points go to the motion whose hits lie nearest. Points rated <= 0 by every motion, and the
     pieces of a layer without a hit (:func:`_drop_pieces_without_hits`), stay unassigned."""
@@ -544,7 +372,7 @@ def _assign_points(ratings: _Ratings, chosen: list[int]) -> list[MotionLayer]:
     return layers
 
 
-def _drop_pieces_without_hits(ratings: _Ratings, table: np.ndarray, owner: np.ndarray, points: np.ndarray,
+def _drop_pieces_without_hits(ratings: Ratings, table: np.ndarray, owner: np.ndarray, points: np.ndarray,
                               state: np.ndarray) -> None:
     """Unassign (owner -1, in place) every piece of a layer that its motion never carries onto the
     other state's moved points: within each state, the layer's points linked at the inlier radius
