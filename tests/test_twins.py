@@ -427,3 +427,27 @@ def test_an_oven_door_beats_a_turn_no_hinge_makes_without_masks(tmp_path):
     (labelers.motion_ratings.detached)."""
     rows = _robot_run(tmp_path, "oven_7201", "robot-sensor-1view")[3]
     assert len(rows) == 1 and rows[0]["pred_type"] == "revolute" and rows[0]["axis_deg"] < 10.0, rows
+
+
+def test_a_motion_that_only_lands_hidden_is_not_selected():
+    """The selection's pool: a motion earns its price from hits. One that lands 2000 points
+    hidden (credit 0.5 each, worth 1000 > the price) with no hit is not chosen; one with more
+    hits than the price is, and a detached turn is not, whatever its hits."""
+    from types import SimpleNamespace
+
+    from sparseart.labelers.motion_layers import _select
+    from sparseart.labelers.motion_ratings import HIDDEN_CREDIT
+
+    points = 3000
+    hidden_only = np.zeros(points)
+    hidden_only[:2000] = HIDDEN_CREDIT
+    hits = np.zeros(points)
+    hits[2000:2800] = 1.0
+
+    def ratings(rows, detached):
+        return SimpleNamespace(rows=rows, unseen=np.zeros(points, dtype=bool), physics=[0.0] * len(rows),
+                               slides=[0.0] * len(rows), motions=[np.eye(4)] * len(rows), detached=detached)
+
+    assert _select(ratings([hidden_only, hits], [False, False]), price=600.0) == [1]
+    assert _select(ratings([hidden_only], [False]), price=600.0) == []
+    assert _select(ratings([hits], [True]), price=600.0) == []
