@@ -451,3 +451,29 @@ def test_a_motion_that_only_lands_hidden_is_not_selected():
     assert _select(ratings([hidden_only, hits], [False, False]), price=600.0) == [1]
     assert _select(ratings([hidden_only], [False]), price=600.0) == []
     assert _select(ratings([hits], [True]), price=600.0) == []
+
+
+def test_points_a_dropped_layer_took_by_a_tie_go_back_to_the_part():
+    """Layers below the floor are no parts: their motion leaves the chosen set and its points
+    are assigned again. A patch both motions explain went to the small motion (its own hits lie
+    nearer) and was lost with it; it now stays with the part whose motion explains it."""
+    from types import SimpleNamespace
+
+    from sparseart.labelers.motion_layers import _layers_over_floor
+
+    rng = np.random.default_rng(0)
+    part = rng.uniform(0.0, 1.0, size=(1000, 3))                 # explained by motion 0 only
+    patch = rng.uniform(0.0, 0.2, size=(100, 3)) + [10.0, 0, 0]   # explained by both
+    other = rng.uniform(0.0, 0.2, size=(50, 3)) + [10.5, 0, 0]    # explained by motion 1 only
+    points = np.concatenate([part, patch, other])
+    n = len(points)
+    moved = np.arange(n)
+    row_part = np.concatenate([np.ones(1100), np.zeros(50)])
+    row_small = np.concatenate([np.zeros(1000), np.ones(150)])
+    rows = [np.concatenate([row_part, row_part]), np.concatenate([row_small, row_small])]
+    cloud = SimpleNamespace(points=points)
+    ratings = SimpleNamespace(start=cloud, end=cloud, start_moved=moved, end_moved=moved, rows=rows,
+                              motions=[np.eye(4), np.eye(4).copy()], physics=[0.0, 0.0], slides=[0.0, 0.0],
+                              context=SimpleNamespace(radius=0.3))
+    layers = _layers_over_floor(ratings, [0, 1], floor_start=300, floor_end=300)
+    assert len(layers) == 1 and len(layers[0].start) == 1100 and len(layers[0].end) == 1100
