@@ -87,7 +87,7 @@ def twin_slides(ratings: Ratings, min_points: int) -> list[np.ndarray]:
 
 
 def slide_votes(points: np.ndarray, tree: cKDTree, direction: np.ndarray, lengths: np.ndarray,
-                 radius: float) -> np.ndarray:
+                radius: float) -> np.ndarray:
     """(L,) int: for each length d of the ascending ``lengths``, how many of ``points`` (P, 3) land
     within ``radius`` of a point of ``tree`` (its M targets) after the slide d * ``direction``.
 
@@ -141,12 +141,6 @@ PLANE_HINGE_PIECES = 2      # the largest moved pieces of each state whose plane
 PLANE_HINGE_PLANES = 2      # ... and the planes taken from each (the second from the first's outliers)
 PLANE_HINGE_SAMPLE = 2000   # plane points per side that rank a hinge's four turns
 PLANE_HINGE_SAME_TURN_DEG = 5.0  # a candidate already turning within this of a plane hinge makes it redundant
-
-
-def turn_between(rotation_a: np.ndarray, rotation_b: np.ndarray) -> float:
-    """Angle in degrees of the rotation taking (3, 3) rotation_b to rotation_a. O(1)."""
-    cosine = (np.trace(rotation_a @ rotation_b.T) - 1.0) / 2.0
-    return float(np.degrees(np.arccos(np.clip(cosine, -1.0, 1.0))))
 
 
 def plane_hinges(ratings: Ratings, min_points: int, rng: np.random.Generator) -> list[np.ndarray]:

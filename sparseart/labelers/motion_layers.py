@@ -49,9 +49,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry.clouds import radius_components, slab_axes
+from ..geometry.transforms import rotation_angle
 from .correspondence import PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, motion_size, register_sets, slide_direction
-from .motion_candidates import (PLANE_HINGE_SAME_TURN_DEG, frame_slides, plane_hinges, slab_mirrors, turn_between,
-                                twin_slides)
+from .motion_candidates import PLANE_HINGE_SAME_TURN_DEG, frame_slides, plane_hinges, slab_mirrors, twin_slides
 from .motion_ratings import Ratings
 
 RESIDUAL_ROUNDS = 2
@@ -111,17 +111,13 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
             ratings.add(shifted)
     for k in range(len(ratings.motions)):
         for mirrored in slab_mirrors(ratings, k):
-            mirrored = ratings.tighten(mirrored)
-            if motion_size(mirrored)[0] <= MAX_TURN_DEG and not ratings.known(mirrored):
-                ratings.add(mirrored)
+            _add_turn(ratings, mirrored)
     turns = [motion[:3, :3] for motion in ratings.motions]
     # own generator: the residual rounds below draw the same samples with or without these
     for hinge in plane_hinges(ratings, min_points, np.random.default_rng(context.seed + 11)):
-        if any(turn_between(hinge[:3, :3], turn) < PLANE_HINGE_SAME_TURN_DEG for turn in turns):
+        if any(np.degrees(rotation_angle(hinge[:3, :3] @ turn.T)) < PLANE_HINGE_SAME_TURN_DEG for turn in turns):
             continue    # registration found this turn already: a plane hinge would only add a pivot
-        hinge = ratings.tighten(hinge)
-        if motion_size(hinge)[0] <= MAX_TURN_DEG and not ratings.known(hinge):
-            ratings.add(hinge)
+        _add_turn(ratings, hinge)
     price = max(float(min_points), PRICE_SHARE * (len(start_moved) + len(end_moved)))
     chosen = _select(ratings, price)
     for _ in range(RESIDUAL_ROUNDS):
@@ -144,6 +140,14 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
     return layers, notes
 
 
+def _add_turn(ratings: Ratings, transform: np.ndarray) -> None:
+    """Rate a candidate turn once tightened, unless it then turns more than ``MAX_TURN_DEG`` or
+    equals a rated motion."""
+    transform = ratings.tighten(transform)
+    if motion_size(transform)[0] <= MAX_TURN_DEG and not ratings.known(transform):
+        ratings.add(transform)
+
+
 def _layers_over_floor(ratings: Ratings, chosen: list[int], floor_start: float,
                        floor_end: float) -> list[MotionLayer]:
     """The merged layers (:func:`_assign_points`, :func:`_merge_agreeing`) of the chosen motions
@@ -156,12 +160,18 @@ def _layers_over_floor(ratings: Ratings, chosen: list[int], floor_start: float,
     O(R (assignment + merge)) for R <= len(chosen) rounds."""
     while True:
         layers = _merge_agreeing(ratings, _assign_points(ratings, chosen))
-        small = [layer for layer in layers if len(layer.start) < floor_start or len(layer.end) < floor_end]
-        dropped = {id(layer.transform) for layer in small}
+        dropped = {id(layer.transform) for layer in layers
+                   if len(layer.start) < floor_start or len(layer.end) < floor_end}
         remaining = [k for k in chosen if id(ratings.motions[k]) not in dropped]
-        if not small or len(remaining) == len(chosen) or not remaining:
-            return [layer for layer in layers if not any(layer is s for s in small)]
+        if not dropped or len(remaining) == len(chosen) or not remaining:
+            return [layer for layer in layers if id(layer.transform) not in dropped]
         chosen = remaining
+
+
+def _charge(ratings: Ratings, k: int) -> float:
+    """Motion k's physics charge per claimed point (blocked share and slide sine, weighted as in
+    the pair cost), one formula for the objective and the layers."""
+    return PHYSICS_WEIGHT * ratings.physics[k] + SLIDE_WEIGHT * ratings.slides[k]
 
 
 def _objective(seen: np.ndarray, charges: np.ndarray, chosen: list[int], price: float) -> float:
@@ -184,14 +194,15 @@ def _objective(seen: np.ndarray, charges: np.ndarray, chosen: list[int], price: 
 
 def _select(ratings: Ratings, price: float) -> list[int]:
     """Greedy forward selection, then single removals and swaps while the objective improves,
-    over the motions with more than ``price`` seen hits that are not :func:`~.motion_ratings.detached` (measured
-    on robot-shaped renders: a 23 deg turn with no hit and 2024 hidden points was chosen over a
-    door's hinge with 776 hits, and then dropped as hitless, leaving no part). Ties go to the
+    over the motions with more than ``price`` seen hits that are not
+    :func:`~.motion_ratings.detached` (measured on robot-shaped renders: a 23 deg turn with no hit
+    and 2024 hidden points was chosen over a door's hinge with 776 hits, and then dropped as
+    hitless, leaving no part). Ties go to the
     earlier motion (the assigned pairs' motions come first). The ratings of the seen points are
     gathered once per call (they were re-gathered for each of the ~10^3 trial sets: 12 of 48 s
     on an unposed 4-drawer cabinet without masks)."""
     seen = np.stack(ratings.rows)[:, ~ratings.unseen] if ratings.rows else np.zeros((0, 0))
-    charges = np.array([PHYSICS_WEIGHT * p + SLIDE_WEIGHT * q for p, q in zip(ratings.physics, ratings.slides)])
+    charges = np.array([_charge(ratings, k) for k in range(len(ratings.motions))])
     chosen: list[int] = []
     value = 0.0
     # a motion must earn its price from hits: landing hidden adds to its value but cannot make it
@@ -342,7 +353,7 @@ def _own_motion(ratings: Ratings, big: MotionLayer, small: MotionLayer) -> bool:
 
 
 def _touching(ratings: Ratings, a: MotionLayer, b: MotionLayer, radius: float) -> bool:
-    """Do two layers touch (within ``ADJACENT_RADII`` radii) in either state?"""
+    """Do two layers touch (a point of one within 3 inlier radii of the other) in either state?"""
     for cloud, ia, ib in ((ratings.start, a.start, b.start), (ratings.end, a.end, b.end)):
         if len(ia) and len(ib):
             probe = ib[:: max(1, len(ib) // 500)]
@@ -387,8 +398,7 @@ def _assign_points(ratings: Ratings, chosen: list[int]) -> list[MotionLayer]:
     for slot, k in enumerate(chosen):
         start_idx = ratings.start_moved[owner[:n_start] == slot]
         end_idx = ratings.end_moved[owner[n_start:] == slot]
-        layers.append(MotionLayer(ratings.motions[k], ratings.physics[k], start_idx, end_idx,
-                                  PHYSICS_WEIGHT * ratings.physics[k] + SLIDE_WEIGHT * ratings.slides[k]))
+        layers.append(MotionLayer(ratings.motions[k], ratings.physics[k], start_idx, end_idx, _charge(ratings, k)))
     return layers
 
 

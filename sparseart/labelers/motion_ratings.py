@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
+from ..geometry.transforms import screw_from_transform
 from .consistency import HIDDEN, VIOLATION, StateViews
 from .correspondence import PairContext, apply, blocked_step_share, refine_icp, slide_sine_points
 
@@ -45,20 +45,15 @@ def detached(transform: np.ndarray, points: np.ndarray, static_tree: cKDTree | N
     ill-defined axis) and empty inputs are never detached. O(P + 25 log S)."""
     if static_tree is None or len(points) < 10:
         return False
-    rotvec = Rotation.from_matrix(transform[:3, :3]).as_rotvec()
-    if np.degrees(np.linalg.norm(rotvec)) < ANCHOR_MIN_TURN_DEG:
-        return False
-    axis = rotvec / np.linalg.norm(rotvec)
     centre = points.mean(axis=0)
+    screw = screw_from_transform(transform[:3, :3], transform[:3, 3], reference=centre)
+    if np.degrees(abs(screw.angle)) < ANCHOR_MIN_TURN_DEG:
+        return False
     radius = max(float(np.sqrt(((points - centre) ** 2).sum(axis=1).mean())), 1e-12)
-    shift = transform[:3, 3]
-    pitch = abs(float(shift @ axis))
-    # the fixed line: (I - R) p = t - (t . a) a, least squares (the system is rank 2)
-    pivot = np.linalg.lstsq(np.eye(3) - transform[:3, :3], shift - (shift @ axis) * axis, rcond=None)[0]
-    offsets = (points - pivot) @ axis
-    line = pivot + np.linspace(offsets.min(), offsets.max(), ANCHOR_LINE_SAMPLES)[:, None] * axis
+    offsets = (points - screw.pivot) @ screw.axis
+    line = screw.pivot + np.linspace(offsets.min(), offsets.max(), ANCHOR_LINE_SAMPLES)[:, None] * screw.axis
     gap = float(np.median(static_tree.query(line)[0]))
-    return pitch > ANCHOR_MAX_PITCH * radius or gap > ANCHOR_MAX_GAP * radius
+    return abs(screw.slide) > ANCHOR_MAX_PITCH * radius or gap > ANCHOR_MAX_GAP * radius
 
 
 class Ratings:
