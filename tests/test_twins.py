@@ -395,7 +395,8 @@ def test_a_lid_turned_far_is_found_from_its_planes_without_masks(tmp_path):
 def test_a_turn_no_hinge_on_the_static_body_makes_is_detached():
     """A lid's turn about an edge of the static box is a hinge; the same turn screwed along its
     axis, or about a line far from every static point, is not (an arm carried onto an occluded
-    patch); a small tilt is left to the slide tests."""
+    patch); a small tilt is judged as a slide, and a slide far beyond the part's own size is no
+    joint's."""
     from scipy.spatial import cKDTree
     from scipy.spatial.transform import Rotation
     from sparseart.geometry.transforms import make_transform
@@ -415,7 +416,11 @@ def test_a_turn_no_hinge_on_the_static_body_makes_is_detached():
         assert not detached(turn(70.0, [0.3, 0.0, 0.0]), lid, tree)             # hinge on the back edge
         assert detached(turn(70.0, [0.3, 0.0, 0.0], shift=0.4), lid, tree)      # screwed along its axis
         assert detached(turn(70.0, [1.5, 0.0, 1.0]), lid, tree)                 # about a line in the air
-        assert not detached(turn(5.0, [1.5, 0.0, 1.0]), lid, tree)              # a tilt: not judged here
+        assert not detached(turn(5.0, [1.5, 0.0, 1.0]), lid, tree)              # a tilt: judged as a slide
+        # slides: the lid radius is 0.25; pulled out 0.4 (1.6 radii) it is a drawer's slide, carried
+        # 2 (8 radii) away it is no slide a joint makes
+        assert not detached(make_transform(np.eye(3), scale * np.array([0.4, 0.0, 0.0])), lid, tree)
+        assert detached(make_transform(np.eye(3), scale * np.array([2.0, 0.0, 0.0])), lid, tree)
 
 
 @pytest.mark.skipif(not (PARTNET_DIR / "oven_7201").is_dir(), reason=f"oven_7201 not found in {PARTNET_DIR}")
@@ -427,6 +432,16 @@ def test_an_oven_door_beats_a_turn_no_hinge_makes_without_masks(tmp_path):
     (labelers.motion_ratings.detached)."""
     rows = _robot_run(tmp_path, "oven_7201", "robot-sensor-1view")[3]
     assert len(rows) == 1 and rows[0]["pred_type"] == "revolute" and rows[0]["axis_deg"] < 10.0, rows
+
+
+@pytest.mark.skipif(not (PARTNET_DIR / "drawer_26525").is_dir(), reason=f"drawer_26525 not found in {PARTNET_DIR}")
+def test_a_drawer_beats_a_slide_far_beyond_its_size_without_masks(tmp_path):
+    """The robot shape with reconstructor depth (one posed view per state, no masks): a nightstand
+    drawer pulled out with an arm on it. A slide carrying a patch 11.3 of its radii (no drawer
+    travels that far) won on hidden credit over the drawer's slide of 0.6 radii, whose layer then
+    fell below the part floor: no part was found (labelers.motion_ratings.detached)."""
+    rows = _robot_run(tmp_path, "drawer_26525", "robot-1view")[3]
+    assert len(rows) == 1 and rows[0]["pred_type"] == "prismatic" and rows[0]["axis_deg"] < 10.0, rows
 
 
 def test_a_motion_that_only_lands_hidden_is_not_selected():
