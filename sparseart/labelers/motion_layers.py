@@ -32,9 +32,11 @@ Moved points that no motion explains (rated <= 0 by all: e.g. a twin drawer's fr
 other drawer's motion puts in free space) form residual pieces; each is registered onto the other
 state's unexplained moved points and its motion joins when it hits at least a part's worth of
 points in both states and a joint anchored on the static body could make it (few blocked steps,
-a slide out of its slot). Each point then follows the motion rating it best; ties and
-hidden-only points go to the motion whose hits lie nearest, and a layer's piece (its points of
-one state linked at the inlier radius) without a single hit stays unassigned: landing hidden is
+a slide out of its slot). Each point then follows the motion rating it best (a hit that lands on
+another colour counts as none here: a hand or sleeve in one state lands on the wall or cabinet
+patch it hides, by position a hit); ties and hidden-only points go to the motion whose hits lie
+nearest, and a layer's piece (its points of one state linked at the inlier radius) without a
+single hit stays unassigned: landing hidden is
 no evidence of being attached (a hand on a door in one state, carried back by the door's turn,
 lands behind the cabinet as the door's own sides do). A motion whose layer holds too few
 points to be a part leaves the chosen set, and the points are assigned again among the others
@@ -364,13 +366,14 @@ def _touching(ratings: Ratings, a: MotionLayer, b: MotionLayer, radius: float) -
 
 
 def _assign_points(ratings: Ratings, chosen: list[int]) -> list[MotionLayer]:
-    """Every moved point follows the motion rating it best (hits first); ties and hidden-only
+    """Every moved point follows the motion rating it best (hits first; off-colour hits count as
+    none, :meth:`~.motion_ratings.Ratings.coloured_row`); ties and hidden-only
     points go to the motion whose hits lie nearest. Points rated <= 0 by every motion, and the
     pieces of a layer without a hit (:func:`_drop_pieces_without_hits`), stay unassigned."""
     if not chosen:
         return []
     n_start = len(ratings.start_moved)
-    table = np.stack([ratings.rows[k] for k in chosen])
+    table = np.stack([ratings.coloured_row(k) for k in chosen])
     best = table.max(axis=0)
     points = np.concatenate([ratings.start.points[ratings.start_moved], ratings.end.points[ratings.end_moved]])
     state = np.concatenate([np.zeros(n_start, dtype=bool), np.ones(len(ratings.end_moved), dtype=bool)])
