@@ -462,8 +462,8 @@ def test_a_hand_of_another_colour_does_not_join_the_door_without_masks(tmp_path)
     opened with an arm on it in the end state. Carried back by the door's turn, the hand and the
     sleeve land on the patch of the cabinet they hide, hits by position alone; 548 arm points
     joined the door's layer and the hinge came out 11.9 deg off. A hit must keep the colour
-    (CIELAB a*b*, labelers.motion_ratings.HIT_COLOUR_AB) for a point to join a part: 337 arm points
-    are left, the hinge is 0.6 deg off."""
+    (labelers.motion_ratings.off_colour) for a point to join a part: 59 arm points are left, the
+    hinge is 0.4 deg off."""
     from sparseart.bench.evaluate import true_groups
 
     result, scene, gt, rows = _robot_run(tmp_path, "microwave_7128", "robot-sensor-1view")
@@ -471,33 +471,35 @@ def test_a_hand_of_another_colour_does_not_join_the_door_without_masks(tmp_path)
     groups = true_groups(result.end_cloud, scene, gt)
     part = result.labels.end_part == rows[0]["part"]
     door = gt["joints"][0]["mask_id"]
-    assert np.count_nonzero(part & (groups == 0)) < 0.12 * np.count_nonzero(part & (groups == door))
+    assert np.count_nonzero(part & (groups == 0)) < 0.05 * np.count_nonzero(part & (groups == door))
 
 
 def test_colour_offset_between_states_is_taken_out_of_the_hit_test():
-    """A hit compares the chroma of its two points after the states' global colour offset (a white
-    balance change between the captures): the same red part under a bluish end image still hits,
-    a grey wall patch does not."""
+    """A hit compares the colour of its two points after the states' global colour offset (a
+    white balance change between the captures): the same red part under a bluish end image
+    still hits, a grey wall patch does not; a part darkened by shading (a*b* moves, the
+    chromaticity does not) still hits."""
     from types import SimpleNamespace
 
-    from sparseart.labelers.motion_ratings import HIT_COLOUR_AB, chroma_ab, moved_chroma
     from scipy.spatial import cKDTree
+
+    from sparseart.labelers.motion_ratings import chroma, moved_chroma, off_colour
 
     rng = np.random.default_rng(0)
     wall = np.c_[rng.uniform(0, 1, (400, 2)), np.zeros(400)]
     part = np.c_[rng.uniform(0, 0.3, (200, 2)), np.full(200, 0.5)]
-    start = SimpleNamespace(points=np.r_[wall, part], colors=np.r_[np.full((400, 3), 0.5), np.tile([0.8, 0.2, 0.2], (200, 1))])
+    red = np.tile([0.8, 0.2, 0.2], (200, 1))
+    start = SimpleNamespace(points=np.r_[wall, part], colors=np.r_[np.full((400, 3), 0.5), red])
     tint = np.array([-0.05, 0.0, 0.08])       # the end image's white balance
     grey_patch = np.full((50, 3), 0.5) + tint
     end = SimpleNamespace(points=np.r_[wall, part, part[:50] + [0, 0, -0.5]],
                           colors=np.r_[start.colors + tint, grey_patch])
     start_moved, end_moved = np.arange(400, 600), np.arange(400, 650)
-    start_ab, end_ab = moved_chroma(start, end, start_moved, end_moved, cKDTree(end.points))
-    same_part = np.linalg.norm(start_ab[:50] - end_ab[:50], axis=1)
-    onto_wall = np.linalg.norm(start_ab[:50] - end_ab[200:250], axis=1)
-    untinted = np.linalg.norm(chroma_ab(start.colors[400:450]) - chroma_ab(end.colors[400:450]), axis=1)
-    assert untinted.min() > HIT_COLOUR_AB > 3.0 * same_part.max()      # a miss without the offset, a hit with it
-    assert onto_wall.min() > HIT_COLOUR_AB
+    start_chroma, end_chroma = moved_chroma(start, end, start_moved, end_moved, cKDTree(end.points))
+    assert off_colour(chroma(red[:50]), chroma(red[:50] + tint)).all()          # a miss without the offset
+    assert not off_colour(start_chroma[:50], end_chroma[:50]).any()              # a hit with it
+    assert off_colour(start_chroma[:50], end_chroma[200:250]).all()              # the wall is another colour
+    assert not off_colour(chroma(red[:50]), chroma(0.4 * red[:50])).any()        # shade is no colour
 
 
 def test_a_motion_that_only_lands_hidden_is_not_selected():

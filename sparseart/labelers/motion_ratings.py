@@ -4,7 +4,8 @@ point of the other state, ``HIDDEN_CREDIT`` when it lands where the other state'
 see, 0 on another seen surface, -1 where the views saw through; plus each motion's physics
 (blocked steps), slide sine, and whether it is a turn no hinge on the static body makes
 (:func:`detached`). Each motion also marks its off-colour hits (the two points' CIELAB a*b* more
-than ``HIT_COLOUR_AB`` apart after the states' global colour offset, :func:`moved_chroma`): they
+than ``HIT_COLOUR_AB`` and their rg chromaticity more than ``HIT_CHROMATICITY`` apart, after the
+states' global colour offset, :func:`moved_chroma`): they
 count for the selection, but a point does not join a part by one (:meth:`Ratings.coloured_row`).
 """
 from __future__ import annotations
@@ -29,10 +30,13 @@ ANCHOR_LINE_SAMPLES = 25
 ANCHOR_MAX_SLIDE = 5.0      # a slide (a turn below ANCHOR_MIN_TURN_DEG) carries its points at most this
                             # many part radii (median travel)
 STATIC_SAMPLE = 20000
-HIT_COLOUR_AB = 15.0        # a hit's two points differ by at most this in CIELAB a*b* (chroma; shading
-                            # changes L*, not a*b*) after the two states' global colour offset. Measured
-                            # on robot-shaped renders (JPEG, image noise): hits of a part on itself
-                            # median 2-8, of an arm on the patch it hides median 11-31
+HIT_COLOUR_AB = 10.0        # a hit is off-colour when its two points differ by more than this in CIELAB
+HIT_CHROMATICITY = 0.04     # a*b* AND by more than this in rg chromaticity (r, g over r + g + b), after
+                            # the two states' global colour offset. Measured on robot-shaped renders (JPEG,
+                            # image noise): a*b* gaps of a part on itself median 2-8, of an arm on the patch
+                            # it hides 11-31; a textured lid turning under the light changes its a*b* by a
+                            # median 10.5 (shading moves a*b*, not the chromaticity), a black door's
+                            # chromaticity is noise (its a*b* is not): each test alone demotes true hits
 
 
 def detached(transform: np.ndarray, points: np.ndarray, static_tree: cKDTree | None) -> bool:
@@ -71,28 +75,39 @@ def detached(transform: np.ndarray, points: np.ndarray, static_tree: cKDTree | N
     return abs(screw.slide) > ANCHOR_MAX_PITCH * radius or gap > ANCHOR_MAX_GAP * radius
 
 
-def chroma_ab(colors: np.ndarray) -> np.ndarray:
-    """(N, 2) CIELAB a*, b* of (N, 3) RGB colours in [0, 1] (a* and b* in [-128, 127])."""
+def chroma(colors: np.ndarray) -> np.ndarray:
+    """(N, 4) colour without brightness of (N, 3) RGB colours in [0, 1]: CIELAB a*, b* (in
+    [-128, 127]) and rg chromaticity r / (r + g + b), g / (r + g + b) (in [0, 1])."""
     import cv2
 
-    rgb = np.ascontiguousarray(np.clip(colors, 0.0, 1.0), dtype=np.float32)[None]
-    return cv2.cvtColor(rgb, cv2.COLOR_RGB2LAB)[0, :, 1:].astype(np.float64)
+    rgb = np.clip(np.asarray(colors, dtype=np.float64), 0.0, 1.0)
+    ab = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.float32)[None], cv2.COLOR_RGB2LAB)[0, :, 1:]
+    rg = rgb[:, :2] / np.maximum(rgb.sum(axis=1, keepdims=True), 1e-6)
+    return np.concatenate([ab.astype(np.float64), rg], axis=1)
+
+
+def off_colour(own: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(K,) bool: the (K, 4) :func:`chroma` rows differ by more than ``HIT_COLOUR_AB`` in a*b* and
+    more than ``HIT_CHROMATICITY`` in rg chromaticity."""
+    gap = own - target
+    return ((np.linalg.norm(gap[:, :2], axis=1) > HIT_COLOUR_AB)
+            & (np.linalg.norm(gap[:, 2:], axis=1) > HIT_CHROMATICITY))
 
 
 def moved_chroma(start, end, start_moved: np.ndarray, end_moved: np.ndarray,
                  end_tree: cKDTree) -> tuple[np.ndarray, np.ndarray]:
-    """a*b* of the moved points of each state ((M_s, 2), (M_e, 2)), the end's corrected by the
-    global colour offset between the states (white balance, exposure tint): the median a*b*
+    """:func:`chroma` of the moved points of each state ((M_s, 4), (M_e, 4)), the end's corrected
+    by the global colour offset between the states (white balance, exposure tint): the median
     difference of the start's unmoved points and their nearest end points. O(S log E)."""
-    start_ab, end_ab = chroma_ab(start.colors[start_moved]), chroma_ab(end.colors[end_moved])
+    start_chroma, end_chroma = chroma(start.colors[start_moved]), chroma(end.colors[end_moved])
     still = np.ones(len(start.points), dtype=bool)
     still[start_moved] = False
     still = np.flatnonzero(still)[:: max(1, int(still.sum()) // STATIC_SAMPLE)]
     if len(still) >= 10:
         nearest = end_tree.query(start.points[still])[1]
-        offset = np.median(chroma_ab(end.colors[nearest]) - chroma_ab(start.colors[still]), axis=0)
-        end_ab = end_ab - offset
-    return start_ab, end_ab
+        offset = np.median(chroma(end.colors[nearest]) - chroma(start.colors[still]), axis=0)
+        end_chroma = end_chroma - offset
+    return start_chroma, end_chroma
 
 
 class Ratings:
@@ -112,7 +127,7 @@ class Ratings:
         self.end_tree = cKDTree(self.end.points[end_moved])
         self.start_all = cKDTree(self.start.points)
         self.end_all = cKDTree(self.end.points)
-        self.start_ab, self.end_ab = moved_chroma(context.start, context.end, start_moved, end_moved, self.end_all)
+        self.start_chroma, self.end_chroma = moved_chroma(context.start, context.end, start_moved, end_moved, self.end_all)
         self.motions: list[np.ndarray] = []
         self.rows: list[np.ndarray] = []      # (N_s + N_e,) ratings per motion
         self.off_colour: list[np.ndarray] = []  # (N_s + N_e,) bool: hits onto another colour
@@ -122,7 +137,7 @@ class Ratings:
         self._static_tree: cKDTree | None = None
 
     def _rate(self, points: np.ndarray, tree: cKDTree, views: StateViews, own_unseen: np.ndarray,
-              target_unseen: np.ndarray, own_ab: np.ndarray, target_ab: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+              target_unseen: np.ndarray, own_chroma: np.ndarray, target_chroma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         distance, index = tree.query(points, k=1, distance_upper_bound=self.radius)
         hits = distance < self.radius
         # Unseen points (hidden in the other state, no vote in the split) earn nothing from each
@@ -130,25 +145,25 @@ class Ratings:
         hits[hits] &= ~(own_unseen[hits] & target_unseen[index[hits]])
         # A rigid part keeps its colour: a landing on a surface of another colour is no hit (an arm
         # in one state, carried onto the wall patch it hides, lands on the wall's colour).
-        off_colour = np.zeros(len(points), dtype=bool)
-        off_colour[hits] = np.linalg.norm(own_ab[hits] - target_ab[index[hits]], axis=1) > HIT_COLOUR_AB
+        off = np.zeros(len(points), dtype=bool)
+        off[hits] = off_colour(own_chroma[hits], target_chroma[index[hits]])
         rating = hits.astype(np.float64)
         if views:
             labels = views.classify(points[~hits])
             rating[~hits] = np.where(labels == HIDDEN, HIDDEN_CREDIT, np.where(labels == VIOLATION, -1.0, 0.0))
         # An unseen point carried to where the other state cannot see either: no evidence at all.
         rating[own_unseen & (rating == HIDDEN_CREDIT)] = 0.0
-        return rating, off_colour
+        return rating, off
 
     def rate(self, transform: np.ndarray) -> np.ndarray:
         return self.rate_with_colour(transform)[0]
 
     def rate_with_colour(self, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         forward = self._rate(apply(transform, self.start.points[self.start_moved]), self.end_tree,
-                             self.context.end_views, self.start_unseen, self.end_unseen, self.start_ab, self.end_ab)
+                             self.context.end_views, self.start_unseen, self.end_unseen, self.start_chroma, self.end_chroma)
         backward = self._rate(apply(np.linalg.inv(transform), self.end.points[self.end_moved]), self.start_tree,
-                              self.context.start_views, self.end_unseen, self.start_unseen, self.end_ab,
-                              self.start_ab)
+                              self.context.start_views, self.end_unseen, self.start_unseen, self.end_chroma,
+                              self.start_chroma)
         return np.concatenate([forward[0], backward[0]]), np.concatenate([forward[1], backward[1]])
 
     def coloured_row(self, k: int) -> np.ndarray:
@@ -182,10 +197,10 @@ class Ratings:
 
     def add(self, transform: np.ndarray, row: np.ndarray | None = None) -> None:
         if row is None:
-            row, off_colour = self.rate_with_colour(transform)
+            row, off = self.rate_with_colour(transform)
         else:
-            off_colour = np.zeros(len(row), dtype=bool)
-        self.off_colour.append(off_colour)
+            off = np.zeros(len(row), dtype=bool)
+        self.off_colour.append(off)
         n_start = len(self.start_moved)
         own_s = self.start_moved[row[:n_start] >= 1.0]
         own_e = self.end_moved[row[n_start:] >= 1.0]
