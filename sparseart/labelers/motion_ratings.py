@@ -94,15 +94,23 @@ def off_colour(own: np.ndarray, target: np.ndarray) -> np.ndarray:
             & (np.linalg.norm(gap[:, 2:], axis=1) > HIT_CHROMATICITY))
 
 
+def unmoved_sample(count: int, moved: np.ndarray) -> np.ndarray:
+    """Indices of at most ``STATIC_SAMPLE`` (strided) of ``count`` points that are not in
+    ``moved``. O(count)."""
+    still = np.ones(count, dtype=bool)
+    still[moved] = False
+    still = np.flatnonzero(still)
+    return still[:: max(1, len(still) // STATIC_SAMPLE)]
+
+
 def moved_chroma(start, end, start_moved: np.ndarray, end_moved: np.ndarray,
                  end_tree: cKDTree) -> tuple[np.ndarray, np.ndarray]:
     """:func:`chroma` of the moved points of each state ((M_s, 4), (M_e, 4)), the end's corrected
     by the global colour offset between the states (white balance, exposure tint): the median
-    difference of the start's unmoved points and their nearest end points. O(S log E)."""
+    difference of the start's unmoved points (:func:`unmoved_sample`) and their nearest end
+    points. O(S log E)."""
     start_chroma, end_chroma = chroma(start.colors[start_moved]), chroma(end.colors[end_moved])
-    still = np.ones(len(start.points), dtype=bool)
-    still[start_moved] = False
-    still = np.flatnonzero(still)[:: max(1, int(still.sum()) // STATIC_SAMPLE)]
+    still = unmoved_sample(len(start.points), start_moved)
     if len(still) >= 10:
         nearest = end_tree.query(start.points[still])[1]
         offset = np.median(chroma(end.colors[nearest]) - chroma(start.colors[still]), axis=0)
@@ -127,7 +135,8 @@ class Ratings:
         self.end_tree = cKDTree(self.end.points[end_moved])
         self.start_all = cKDTree(self.start.points)
         self.end_all = cKDTree(self.end.points)
-        self.start_chroma, self.end_chroma = moved_chroma(context.start, context.end, start_moved, end_moved, self.end_all)
+        self.start_chroma, self.end_chroma = moved_chroma(context.start, context.end, start_moved, end_moved,
+                                                          self.end_all)
         self.motions: list[np.ndarray] = []
         self.rows: list[np.ndarray] = []      # (N_s + N_e,) ratings per motion
         self.off_colour: list[np.ndarray] = []  # (N_s + N_e,) bool: hits onto another colour
@@ -137,7 +146,8 @@ class Ratings:
         self._static_tree: cKDTree | None = None
 
     def _rate(self, points: np.ndarray, tree: cKDTree, views: StateViews, own_unseen: np.ndarray,
-              target_unseen: np.ndarray, own_chroma: np.ndarray, target_chroma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+              target_unseen: np.ndarray, own_chroma: np.ndarray,
+              target_chroma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         distance, index = tree.query(points, k=1, distance_upper_bound=self.radius)
         hits = distance < self.radius
         # Unseen points (hidden in the other state, no vote in the split) earn nothing from each
@@ -160,7 +170,8 @@ class Ratings:
 
     def rate_with_colour(self, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         forward = self._rate(apply(transform, self.start.points[self.start_moved]), self.end_tree,
-                             self.context.end_views, self.start_unseen, self.end_unseen, self.start_chroma, self.end_chroma)
+                             self.context.end_views, self.start_unseen, self.end_unseen, self.start_chroma,
+                             self.end_chroma)
         backward = self._rate(apply(np.linalg.inv(transform), self.end.points[self.end_moved]), self.start_tree,
                               self.context.start_views, self.end_unseen, self.start_unseen, self.end_chroma,
                               self.start_chroma)
@@ -195,11 +206,8 @@ class Ratings:
                 return True
         return False
 
-    def add(self, transform: np.ndarray, row: np.ndarray | None = None) -> None:
-        if row is None:
-            row, off = self.rate_with_colour(transform)
-        else:
-            off = np.zeros(len(row), dtype=bool)
+    def add(self, transform: np.ndarray) -> None:
+        row, off = self.rate_with_colour(transform)
         self.off_colour.append(off)
         n_start = len(self.start_moved)
         own_s = self.start_moved[row[:n_start] >= 1.0]
@@ -217,12 +225,10 @@ class Ratings:
         """KD-tree of at most ``STATIC_SAMPLE`` of the start points that did not move (None when
         fewer than 10)."""
         if self._static_tree is None:
-            still = np.ones(len(self.start.points), dtype=bool)
-            still[self.start_moved] = False
-            points = self.start.points[still]
-            if len(points) < 10:
+            still = unmoved_sample(len(self.start.points), self.start_moved)
+            if len(still) < 10:
                 return None
-            self._static_tree = cKDTree(points[:: max(1, len(points) // STATIC_SAMPLE)])
+            self._static_tree = cKDTree(self.start.points[still])
         return self._static_tree
 
     def blocked(self, transform: np.ndarray, own_start: np.ndarray, own_end: np.ndarray, part_start: np.ndarray,
