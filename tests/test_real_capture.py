@@ -44,3 +44,15 @@ def test_real_laptop_lid_hinge_and_turn(laptop) -> None:
     turn = min(turn, 360.0 - turn)
     assert abs(turn - (180.0 - gt["angle_deg_abs"])) < 10.0
     assert np.isfinite(joint.uncertainty["axis_deg"]) and joint.confidence > 0.2
+
+
+@requires_real
+def test_real_laptop_confidence_reads_the_residual_beyond_its_noise(laptop) -> None:
+    # Sensor depth leaves a residual floor no motion removes (the lid's two disjoint samples of
+    # one state pair at 3.8 mm, the fit at 4.5 mm): read against the raw residual the correct
+    # lid scored 0.66; now 0.77, clean laptop renders 0.80-0.86 (benchmarks/results/realistic/noise_floor/).
+    result, _ = laptop
+    joint = max((joint for _, joint in result.joints if joint.type == "revolute"), key=lambda j: j.confidence)
+    floor = joint.diagnostics["residual_floor"]
+    assert 0.0 < floor < joint.residual
+    assert joint.confidence > 0.72

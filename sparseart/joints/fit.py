@@ -28,7 +28,8 @@ their RMS radius; results converted back at the end), each in its own module:
    sigma cannot see; the Jacobian sigma alone covered 39 % / 50 % / 72 % of the axis errors at
    1 / 2 / 3 sigma on the 16 PartNet objects, the stated sigma covers 75 % / 90 % / 90 %
    (benchmarks/results/uncertainty_calibration_v2.txt);
-6. ``reliability``: warnings with codes and the confidence.
+6. ``reliability``: warnings with codes and the confidence (read on the residual beyond the part's
+   sampling and noise floor, ``noise_floor.residual_floor``).
 
 Cost of one call (W working points per state, n matching / c Chamfer sample per side, p <= 5;
 benchmarks/results/profile/ has the measured curve): step 1 O(W log W) once per part (~0.1 s CPU
@@ -57,6 +58,7 @@ from sparseart.geometry.transforms import (
 )
 from sparseart.joints.config import BUDGETS, UNCERTAINTY_FLOOR, FitConfig
 from sparseart.joints.models import initial_models
+from sparseart.joints.noise_floor import residual_floor
 from sparseart.joints.optimise import ModelFit, fit_model
 from sparseart.joints.part import MIN_POINTS, PartData, fingerprint, prepare_part
 from sparseart.joints.reliability import (
@@ -358,10 +360,13 @@ def _estimate(fit: ModelFit, part: PartData, covariances: dict[str, np.ndarray],
                                      config.far_pivot_factor)
     rotation = transform_n[:3, :3]
     transform = make_transform(rotation, scale * transform_n[:3, 3] + centre - rotation @ centre)
+    floor = residual_floor(part, config)
     diagnostics.update({"pairs": fit.pairs, "match_fraction": fit.match_fraction, "condition": fit.condition,
+                        "residual_floor": floor * scale,
                         "part_radius": part_radius * scale, "warning_codes": [w.code.value for w in warnings],
                         **sigma_parts})
     return JointEstimate(type=kind, axis=axis.copy(), origin=origin, angle=estimate_angle, distance=estimate_distance,
                          transform=transform, uncertainty=uncertainty, residual=residual * scale,
-                         confidence=confidence(fit.match_fraction, residual, part_radius, warnings), slide=slide,
+                         confidence=confidence(fit.match_fraction, residual, part_radius, warnings, floor),
+                         slide=slide,
                          warnings=[w.message for w in warnings], diagnostics=diagnostics)

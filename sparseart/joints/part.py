@@ -263,10 +263,10 @@ def _sample(start: np.ndarray, end: np.ndarray, start_tree: cKDTree, end_tree: c
             end_conf: np.ndarray | None = None) -> Sample:
     pick_start = random_subset(len(start), count, rng)
     pick_end = random_subset(len(end), count, rng)
-    return _make_sample(start[pick_start], end[pick_end],
-                        estimate_normals(start, NORMAL_NEIGHBOURS, at=pick_start, tree=start_tree),
-                        estimate_normals(end, NORMAL_NEIGHBOURS, at=pick_end, tree=end_tree),
-                        _pick(start_conf, pick_start), _pick(end_conf, pick_end))
+    return make_sample(start[pick_start], end[pick_end],
+                       estimate_normals(start, NORMAL_NEIGHBOURS, at=pick_start, tree=start_tree),
+                       estimate_normals(end, NORMAL_NEIGHBOURS, at=pick_end, tree=end_tree),
+                       _pick(start_conf, pick_start), _pick(end_conf, pick_end))
 
 
 def _subsample(sample: Sample, count: int, rng: np.random.Generator) -> Sample:
@@ -274,13 +274,15 @@ def _subsample(sample: Sample, count: int, rng: np.random.Generator) -> Sample:
         return sample
     pick_start = random_subset(len(sample.start), count, rng)
     pick_end = random_subset(len(sample.end), count, rng)
-    return _make_sample(sample.start[pick_start], sample.end[pick_end], sample.start_normals[pick_start],
-                        sample.end_normals[pick_end], _pick(sample.start_confidence, pick_start),
-                        _pick(sample.end_confidence, pick_end))
+    return make_sample(sample.start[pick_start], sample.end[pick_end], sample.start_normals[pick_start],
+                       sample.end_normals[pick_end], _pick(sample.start_confidence, pick_start),
+                       _pick(sample.end_confidence, pick_end))
 
 
-def _make_sample(start: np.ndarray, end: np.ndarray, start_normals: np.ndarray, end_normals: np.ndarray,
-                 start_confidence: np.ndarray | None = None, end_confidence: np.ndarray | None = None) -> Sample:
+def make_sample(start: np.ndarray, end: np.ndarray, start_normals: np.ndarray, end_normals: np.ndarray,
+                start_confidence: np.ndarray | None = None, end_confidence: np.ndarray | None = None) -> Sample:
+    """A :class:`Sample` of start (n, 3) / end (m, 3) points with their normals (and
+    confidences): builds the end tree and the spacing. O(m log m)."""
     tree = cKDTree(end)
     spacing = median_spacing(end, tree=tree) if len(end) > 1 else 0.0
     return Sample(start, end, start_normals, end_normals, tree, spacing, start_confidence, end_confidence)

@@ -141,10 +141,15 @@ def reliability_warnings(kind: str, uncertainty: dict, angle: float | None, dist
     return found
 
 
-def confidence(match_fraction: float, residual: float, part_radius: float, warnings: list[FitWarning]) -> float:
-    """In [0, 1]: the matched fraction, divided by 1 + (residual / (0.1 part radius))^2, halved
-    when any warning ``lowers_confidence``."""
-    relative = residual / max(part_radius, 1e-12)
+def confidence(match_fraction: float, residual: float, part_radius: float, warnings: list[FitWarning],
+               floor: float = 0.0) -> float:
+    """In [0, 1]: the matched fraction, divided by 1 + (excess / (0.1 part radius))^2, halved
+    when any warning ``lowers_confidence``. excess = sqrt(max(residual^2 - floor^2, 0)): the
+    residual beyond what the part's own sampling and depth noise leave under a perfect motion
+    (``floor``, :func:`~sparseart.joints.noise_floor.residual_floor`; same units as ``residual``),
+    so noise alone does not read as a bad fit."""
+    excess = float(np.sqrt(max(residual ** 2 - floor ** 2, 0.0)))
+    relative = excess / max(part_radius, 1e-12)
     value = float(np.clip(match_fraction, 0, 1) / (1.0 + (relative / CONFIDENCE_RESIDUAL) ** 2))
     if any(w.code.lowers_confidence for w in warnings):
         value *= 0.5
