@@ -162,8 +162,7 @@ _SUBSTAGE_WHY = {"load_model": "ONNX reconstructor: session created",
 
 def _labelled_by_motion(labels: PartLabels) -> bool:
     """Did the labeler split the points by motion (no masks)?"""
-    diagnostics = getattr(labels, "diagnostics", None) or {}
-    return bool(diagnostics.get("motion_split", False))
+    return bool(labels.diagnostics.get("motion_split", False))
 
 
 def _second_opinion(start: LabelledCloud, end: LabelledCloud, scene: Scene | None, labels: PartLabels,

@@ -192,6 +192,10 @@ class PartLabels:
         (unlike ``PartSpec.joint_type``, it does not skip the fitter's classification).
     alternative_motions: part id -> other (4, 4) start->end motions that explain the part's points
         about as well as ``initial_motion`` (symmetric parts); the pipeline fits from each.
+    confidence: part id -> the labeler's trust in the part's pairing across the states, in [0, 1]
+        (1 when absent): look-alike parts whose pairing the other way round costs almost as much
+        get less; the joint's confidence is multiplied by it (:func:`~sparseart.joints.candidates.fit_parts`).
+    diagnostics: the labeler's own report (pairing costs, runner-up, consistency; JSON-able).
     """
 
     parts: list[PartSpec]
@@ -203,6 +207,8 @@ class PartLabels:
     type_prior: dict[int, str] = field(default_factory=dict)
     alternative_motions: dict[int, list[np.ndarray]] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    confidence: dict[int, float] = field(default_factory=dict)
+    diagnostics: dict = field(default_factory=dict)
 
     @property
     def movable(self) -> list[PartSpec]:

@@ -551,3 +551,26 @@ def test_points_a_dropped_layer_took_by_a_tie_go_back_to_the_part():
                               context=SimpleNamespace(radius=0.3))
     layers = _layers_over_floor(ratings, [0, 1], floor_start=300, floor_end=300)
     assert len(layers) == 1 and len(layers[0].start) == 1100 and len(layers[0].end) == 1100
+
+
+def test_an_ambiguous_pairing_lowers_the_joint_confidence():
+    # The labeler's per-part trust in its pairing (look-alike parts that could pair the other way
+    # round get margin / 0.08, at least 0.3, with a warning saying "confidence lowered") reaches
+    # the joint: it used to stay on the labels, and an ambiguous twin reported 0.8.
+    from synthetic import make_clouds
+
+    from sparseart.joints.candidates import fit_parts
+    from sparseart.types import PartLabels, PartSpec
+
+    start, end, _ = make_clouds("revolute", np.radians(40))
+    parts = [PartSpec(id=0, role="static"), PartSpec(id=1, role="movable")]
+
+    def fitted(confidence: dict[int, float]):
+        labels = PartLabels(parts=parts, start_part=np.where(start.segment == 2, 1, 0),
+                            end_part=np.where(end.segment == 2, 1, 0), confidence=confidence)
+        return fit_parts(start, end, labels, warnings=[])[1].joint
+
+    sure, ambiguous = fitted({}), fitted({1: 0.4})
+    assert sure.confidence > 0.5 and "pairing_confidence" not in sure.diagnostics
+    assert ambiguous.confidence == pytest.approx(0.4 * sure.confidence)
+    assert ambiguous.diagnostics["pairing_confidence"] == 0.4

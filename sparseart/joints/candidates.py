@@ -24,6 +24,8 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
               config: FitConfig | None = None, warnings: list[str]) -> list[PartResult]:
     """Fit every movable part's joint (:func:`fit_part`); parts with too few points get a warning
     and no joint. Revolute origins are moved to the axis point nearest the object's median point.
+    A joint's confidence is multiplied by the labeler's trust in its part's pairing
+    (``labels.confidence``; ``diagnostics["pairing_confidence"]`` when below 1).
     The stated uncertainty gains the static frame's own error (:func:`~sparseart.joints.uncertainty.
     frame_misfit`: how far the static part's two states disagree beyond their sampling).
     Returns one :class:`PartResult` per part of ``labels``; appends warnings prefixed by the part."""
@@ -64,6 +66,10 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
             continue
         if joint.type == "revolute":
             joint.origin = point_on_line_nearest(joint.origin, joint.axis, object_centre)
+        pairing = float(labels.confidence.get(spec.id, 1.0))
+        if pairing < 1.0:   # look-alike parts that could pair the other way round (the labeler warned)
+            joint.diagnostics["pairing_confidence"] = pairing
+            joint.confidence *= pairing
         warnings.extend(f"part {spec.id}: {w}" for w in joint.warnings)
         result.joint = joint
     return results

@@ -849,7 +849,6 @@ def _object_consistency(labels: PartLabels, work_start: LabelledCloud, work_end:
 
 
 def _attach(labels: PartLabels, diagnostics: dict) -> None:
-    """Store the diagnostics and per-part confidence on the labels (fields when the type has
-    them, attributes otherwise)."""
+    """Store the diagnostics and the per-part pairing confidence on the labels."""
     labels.diagnostics = diagnostics
     labels.confidence = dict(diagnostics.get("confidence", {}))
