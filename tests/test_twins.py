@@ -550,8 +550,9 @@ def test_points_a_dropped_layer_took_by_a_tie_go_back_to_the_part():
                               coloured_row=lambda k: rows[k],       # every hit keeps its colour
                               motions=[np.eye(4), np.eye(4).copy()], physics=[0.0, 0.0], slides=[0.0, 0.0],
                               context=SimpleNamespace(radius=0.3))
-    layers = _layers_over_floor(ratings, [0, 1], floor_start=300, floor_end=300)
+    layers, dropped = _layers_over_floor(ratings, [0, 1], floor_start=300, floor_end=300)
     assert len(layers) == 1 and len(layers[0].start) == 1100 and len(layers[0].end) == 1100
+    assert dropped == {1}
 
 
 def test_an_ambiguous_pairing_lowers_the_joint_confidence():
