@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from dataclasses import astuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -43,10 +42,11 @@ def residual_floor(part: PartData, config: FitConfig) -> float:
     sampling and per-point noise leave under a perfect motion: the quadratic mean of the two
     states' :func:`state_floor`. 0 when a state has too few points to split.
 
-    Cached per prepared part (``part.key``) and config: every candidate fit of a part reads the
-    same floor. O(W log W + n log n + the sparse matching) for W working and n = matching-sample
-    points per state (~20-40 ms at n = 1500)."""
-    key = (part.key, astuple(config)) if part.key is not None else None
+    Cached per prepared part (``part.key``, which holds the fit config the part was prepared
+    with, the one passed here): every candidate fit of a part reads the same floor. O(W log W +
+    n log n + the sparse matching) for W working and n = matching-sample points per state
+    (~20-40 ms at n = 1500)."""
+    key = part.key
     if key is not None:
         with _lock:
             if key in _cache:
@@ -54,7 +54,7 @@ def residual_floor(part: PartData, config: FitConfig) -> float:
                 return _cache[key]
     rng = np.random.default_rng(config.seed + FLOOR_SEED_OFFSET)
     size = part.match.size
-    floors = [state_floor(points, size, config, rng) for points in (part.start, part.end)]
+    floors = [state_floor(part.start, size, config, rng), state_floor(part.end, size, config, rng, part.end_tree)]
     value = float(np.sqrt(np.mean(np.square(floors)))) if all(f > 0 for f in floors) else 0.0
     if key is not None:
         with _lock:
@@ -64,20 +64,22 @@ def residual_floor(part: PartData, config: FitConfig) -> float:
     return value
 
 
-def state_floor(points: np.ndarray, size: int, config: FitConfig, rng: np.random.Generator) -> float:
+def state_floor(points: np.ndarray, size: int, config: FitConfig, rng: np.random.Generator,
+                tree: cKDTree | None = None) -> float:
     """The floor of one state's points (W, 3), normalised units: two disjoint random samples of
     k = min(size, W // 2) points paired one to one (clip ``config.pair_tau_factor`` x the median
     nearest distance, normals within ``config.normal_gate_deg``), RMS of the pair distances. When
     k < size the halves are sparser than the fit's sample; the RMS is then scaled by sqrt(k /
     size) (surface sampling distances shrink with the square root of the density; the noise
     share does not, so the scaled floor errs low and the confidence never gains from it). 0 with
-    fewer than ``MIN_FLOOR_POINTS`` per half or no pair."""
+    fewer than ``MIN_FLOOR_POINTS`` per half or no pair. ``tree``: the points' k-d tree when the
+    caller has one (the prepared part's end tree)."""
     half = min(int(size), len(points) // 2)
     if half < MIN_FLOOR_POINTS:
         return 0.0
     order = rng.permutation(len(points))
     first, second = order[:half], order[half:2 * half]
-    tree = cKDTree(points)
+    tree = tree if tree is not None else cKDTree(points)
     normals = [estimate_normals(points, NORMAL_NEIGHBOURS, at=rows, tree=tree) for rows in (first, second)]
     sample = make_sample(points[first], points[second], normals[0], normals[1])
     rows, cols, _ = one_to_one_pairs(sample.start, sample, config.pair_tau_factor, normals[0],
