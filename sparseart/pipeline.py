@@ -105,7 +105,7 @@ def run(scene: Scene | str | Path, labeler: PartLabeler | None = None,
 
         with clock.stage("read", "scene folder"):
             scene = load_scene(scene, require_depth=options.model is None)
-    _segment(scene, options, clock)
+    scene = _segment(scene, options, clock)
     with clock.stage("lift", _lift_reason(scene, options)):
         lifted = lift_scene(scene, reject_flying_pixels=options.reject_flying_pixels, model=options.model,
                             onnx_options=options.onnx_options)
@@ -224,18 +224,24 @@ def _segmenter_spec(scene: Scene, options: RunOptions) -> str:
     return options.segmenter
 
 
-def _segment(scene: Scene, options: RunOptions, clock: StageClock) -> None:
+def _segment(scene: Scene, options: RunOptions, clock: StageClock) -> Scene:
+    """The scene with a mask per image from the chosen segmenter (in place), or, when masks are
+    not used, a copy without the folder's masks: no stage may lean on masks it was told to ignore
+    (the registration's free-space checks read the object's outline from them)."""
     spec = _segmenter_spec(scene, options)
     if spec == "none":
         clock.skip("segment", "masks not used: parts come from a motion split")
-        return
+        if not any(f.mask is not None for f in scene.all_frames):
+            return scene
+        return replace(scene, start=[replace(f, mask=None, mask_path=None) for f in scene.start],
+                       end=[replace(f, mask=None, mask_path=None) for f in scene.end])
     if spec == "given":
         if not scene.has_masks:
             missing = next(f for f in scene.all_frames if f.mask is None)
             raise SceneError(f"{missing.rgb_path}: segmenter 'given' needs a mask for every image "
                              f"({missing.state}/mask/{missing.rgb_path.stem}.png is missing)")
         clock.skip("segment", "masks given in the scene folder")
-        return
+        return scene
     from sparseart.segment import make_segmenter, segment_scene
 
     try:
@@ -249,6 +255,7 @@ def _segment(scene: Scene, options: RunOptions, clock: StageClock) -> None:
             raise
         except ValueError as error:
             raise SceneError(str(error)) from None
+    return scene
 
 
 def _labelled_cloud(scene: Scene, state: str, pointmaps: list, segmenter: str) -> LabelledCloud:

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sparseart.align.features import PLANAR_FRACTION, THRESHOLD_FRACTION, FeatureMatches, match_view_features, view_features
-from sparseart.align.geometric import geometry_edge
+from sparseart.align.geometric import geometry_edge, view_mask_ids
 from sparseart.align.noise import RHO_MAX, depth_roughness, estimate_rho, thresholds
 from sparseart.align.ransac import DEGENERATE_FRACTION, AlignmentError, Similarity, ransac_similarity, umeyama
 from sparseart.geometry.clouds import scene_size, spread, valid_points
@@ -841,28 +841,39 @@ def _group_rho(pairs: list[PairMatches], views: list[int], poses: list[np.ndarra
 
 def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed, reasons, warnings) -> None:
     """Metric views no feature merge reached: the geometric registration to a registered view of
-    their state (best overlap wins), composed with that view's pose."""
-    for v in range(len(frames)):
-        if v in registered:
-            continue
-        same = [u for u in sorted(registered) if (u < n_start) == (v < n_start)]
-        best = None
-        # the size of the view's own state (the other state's moved part would change it)
-        own = [clouds[u] for u in range(len(frames)) if (u < n_start) == (v < n_start) and len(clouds[u])]
-        state_size = scene_size(np.concatenate(own)) if own else size
-        for u in same:
-            edge = geometry_edge(v, u, frames, maps, clouds, state_size, seed)
-            if edge is not None and (best is None or edge[2] > best[1][2]):
-                best = (u, edge)
-        if best is None:
-            reasons[v].append("geometric registration rejected (planar, little overlap or sees through)")
-            continue
-        u, (transform, overlap, _) = best
-        poses[v] = poses[u] @ transform
-        registered.add(v)
-        info[v].how = "geometry"
-        warnings.append(f"{frames[v].image}: registered to {frames[u].image} by geometry only, "
-                        f"{overlap:.0%} overlap")
+    their state (best overlap wins), composed with that view's pose. The user's mask ids, when the
+    frames have masks, vouch for or against a fit (:func:`~sparseart.align.geometric.geometry_edge`)."""
+    ids = [view_mask_ids(f, m) for f, m in zip(frames, maps)]
+    edges: dict[tuple[int, int], tuple | None] = {}
+    rejected: set[int] = set()
+    while True:  # a view placed by geometry can reach the views tried before it: go round again
+        placed = False
+        for v in range(len(frames)):
+            if v in registered:
+                continue
+            same = [u for u in sorted(registered) if (u < n_start) == (v < n_start)]
+            # the size of the view's own state (the other state's moved part would change it)
+            own = [clouds[u] for u in range(len(frames)) if (u < n_start) == (v < n_start) and len(clouds[u])]
+            state_size = scene_size(np.concatenate(own)) if own else size
+            for u in same:
+                if (v, u) not in edges:
+                    edges[v, u] = geometry_edge(v, u, frames, maps, clouds, state_size, seed, ids)
+            found = [(u, edges[v, u]) for u in same if edges[v, u] is not None]
+            if not found:
+                rejected.add(v)
+                continue
+            u, (transform, overlap, _) = max(found, key=lambda item: item[1][2])
+            poses[v] = poses[u] @ transform
+            registered.add(v)
+            rejected.discard(v)
+            placed = True
+            info[v].how = "geometry"
+            warnings.append(f"{frames[v].image}: registered to {frames[u].image} by geometry only, "
+                            f"{overlap:.0%} overlap")
+        if not placed:
+            break
+    for v in sorted(rejected):
+        reasons[v].append("geometric registration rejected (planar, little overlap or sees through)")
 
 
 def _polish(frames, clouds, poses, registered, info, n_start, size, warnings) -> None:

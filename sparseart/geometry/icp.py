@@ -15,6 +15,7 @@ to run: the same input gives the same transform, bit for bit.
 """
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -159,13 +160,19 @@ def register_rigid(
     fpfh_below: float = 0.7,
     tie_tolerance: float = 0.03,
     seed: int = 0,
+    hypotheses: Sequence[np.ndarray] | None = None,
+    agreement: Callable[[np.ndarray], float] | None = None,
 ) -> RigidRegistration:
     """Rigidly align ``source`` (N, 3) onto ``target`` (M, 3), both float64 in one frame.
 
     Both clouds may be partial views of the same rigid part. ``init``: optional (4, 4) source ->
     target guess; when given only it is refined, otherwise all hypotheses are tried (module doc).
     Colours (N, 3)/(M, 3) in [0, 1], when both are given, drive a final open3d coloured-ICP polish
-    (kept only if it does not lower the inlier fraction). Work happens on random subsamples of at
+    (kept only if it does not lower the inlier fraction). ``hypotheses``: (4, 4) source -> target
+    starting guesses in input units, tried in place of the built-in ones (``init`` still wins).
+    ``agreement``: a weight in [0, 1] of a (4, 4) source -> target transform in input units (for
+    instance the share of labelled points whose mask ids agree); hypotheses are then ranked by
+    inlier fraction x agreement instead of the inlier fraction alone. Work happens on random subsamples of at
     most ``max_points`` per cloud, in coordinates normalised by the joint RMS radius; the
     inlier distance is ``inlier_factor`` x the median point spacing. Cost about
     O(H * max_points log max_points) for H hypotheses plus O((N + M) log(N + M)) for the final
@@ -193,30 +200,38 @@ def register_rigid(
     target_cloud = _o3d_cloud(target_sub, radius=4.0 * resolution)
     coarse = max(0.3, 10.0 * resolution)
     schedule = (coarse, max(3.0 * inlier_distance, coarse / 4.0), inlier_distance)
+    def scored(result: dict) -> dict:
+        weight = 1.0 if agreement is None else float(agreement(denormalise @ result["transform"] @ normalise))
+        result["score"] = result["inlier_fraction"] * weight
+        return result
+
     if init is not None:
-        hypotheses = [("init", normalise @ np.asarray(init, dtype=np.float64) @ denormalise)]
+        starts = [("init", normalise @ np.asarray(init, dtype=np.float64) @ denormalise)]
+    elif hypotheses is not None:
+        starts = [(f"given{k}", normalise @ np.asarray(h, dtype=np.float64) @ denormalise)
+                  for k, h in enumerate(hypotheses)]
     else:
-        hypotheses = _hypotheses(source_sub, target_sub)
-    if len(hypotheses) > 1:  # screen the hypotheses cheaply on a coarser subsample, refine the best 2
+        starts = _hypotheses(source_sub, target_sub)
+    if len(starts) > 1:  # screen the hypotheses cheaply on a coarser subsample, refine the best 2
         coarse_pick = random_subset(source_sub.shape[0], max(max_points // 3, 50), rng)
         coarse_cloud = _o3d_cloud(source_sub[coarse_pick])
-        screened = [_refine(name, start, coarse_cloud, target_cloud, schedule[:2], source_sub[coarse_pick],
-                            target_sub, target_tree, schedule[1]) for name, start in hypotheses]
-        screened.sort(key=lambda r: (-round(r["inlier_fraction"], 2), r["angle_deg"]))
-        hypotheses = [(r["name"], r["transform"]) for r in screened[:2]]
-    results = [_refine(name, start, source_cloud, target_cloud, schedule[1:], source_sub, target_sub, target_tree,
-                       inlier_distance) for name, start in hypotheses]
+        screened = [scored(_refine(name, start, coarse_cloud, target_cloud, schedule[:2], source_sub[coarse_pick],
+                                   target_sub, target_tree, schedule[1])) for name, start in starts]
+        screened.sort(key=lambda r: (-round(r["score"], 2), r["angle_deg"]))
+        starts = [(r["name"], r["transform"]) for r in screened[:2]]
+    results = [scored(_refine(name, start, source_cloud, target_cloud, schedule[1:], source_sub, target_sub,
+                              target_tree, inlier_distance)) for name, start in starts]
     if init is None and use_fpfh and max(r["inlier_fraction"] for r in results) < fpfh_below \
             and min(len(source_sub), len(target_sub)) >= 30:
         # The cheap hypotheses did not explain the data: try features (about 0.2-1 s).
         source_cloud.estimate_normals(open3d().geometry.KDTreeSearchParamHybrid(radius=4.0 * resolution, max_nn=30))
         fpfh = _fpfh_hypothesis(source_cloud, target_cloud, 2.0 * resolution, seed)
         if fpfh is not None:
-            results.append(_refine("fpfh", fpfh, source_cloud, target_cloud, schedule, source_sub, target_sub,
-                                   target_tree, inlier_distance))
-    best_fraction = max(r["inlier_fraction"] for r in results)
-    best_rmse = min(r["rmse"] for r in results if r["inlier_fraction"] >= best_fraction - tie_tolerance)
-    ties = [r for r in results if r["inlier_fraction"] >= best_fraction - tie_tolerance
+            results.append(scored(_refine("fpfh", fpfh, source_cloud, target_cloud, schedule, source_sub,
+                                          target_sub, target_tree, inlier_distance)))
+    best_score = max(r["score"] for r in results)
+    best_rmse = min(r["rmse"] for r in results if r["score"] >= best_score - tie_tolerance)
+    ties = [r for r in results if r["score"] >= best_score - tie_tolerance
             and r["rmse"] <= 1.5 * best_rmse + 1e-12]
     chosen = min(ties, key=lambda r: r["angle_deg"])
     transform = chosen["transform"]
