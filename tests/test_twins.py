@@ -641,22 +641,22 @@ def test_mask_ids_tell_a_quarter_turned_box_from_the_true_pose():
     assert scrambled(np.eye(4)) == 0.0      # ids that do not name the same parts never vouch
 
 
-@pytest.mark.skipif(not (PARTNET_DIR / "microwave_7128").is_dir(), reason=f"microwave_7128 not found in {PARTNET_DIR}")
-def test_a_run_without_masks_does_not_read_the_folders_masks(tmp_path):
-    """use_masks=False gives the same output whether or not the scene folder holds masks (before,
-    the registration's free-space checks still read the object's outline from them)."""
-    import shutil
+def test_a_run_without_masks_hands_no_mask_to_any_stage(tmp_path):
+    """use_masks=False: the stages see a scene without the folder's masks (before, the registration's
+    free-space checks still read the object's outline from them, and the labeler got them too)."""
+    from sparseart.datasets.synth import render_synth_scene
+    from sparseart.io.scene import load_scene
+    from sparseart.labelers.rules import RuleBasedLabeler
+    from sparseart.pipeline import run
 
-    import sparseart
-    from sparseart.datasets.partnet import render_partnet_scene
-    from sparseart.io.articulation import articulation_to_dict
+    class Spy(RuleBasedLabeler):
+        def label(self, start, end, scene=None, **kwargs):
+            self.masks = [f.mask for f in scene.all_frames]
+            return super().label(start, end, scene, **kwargs)
 
-    with_masks = tmp_path / "with"
-    render_partnet_scene(PARTNET_DIR / "microwave_7128", with_masks, views=2, seed=0, posed=False)
-    without = tmp_path / "without"
-    shutil.copytree(with_masks, without)
-    for state in ("start", "end"):
-        shutil.rmtree(without / state / "mask")
-    outputs = [json.dumps(_without_seconds(articulation_to_dict(sparseart.run(folder, use_masks=False))),
-                          sort_keys=True) for folder in (with_masks, without)]
-    assert outputs[0] == outputs[1]
+    render_synth_scene(tmp_path / "cabinet", views=2, seed=0, posed=False, width=160, height=120)
+    scene = load_scene(tmp_path / "cabinet")
+    spy = Spy()
+    run(scene, labeler=spy, use_masks=False)
+    assert spy.masks and all(mask is None for mask in spy.masks)
+    assert all(f.mask is not None for f in scene.all_frames)     # the caller's scene is left as it was
