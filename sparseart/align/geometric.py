@@ -41,8 +41,6 @@ LABEL_MIN_ID_NEAR = 10   # an id counts in the agreement when this many of its p
 LABEL_SAMPLE = 2000      # labelled source points sampled for the agreement
 MAX_SEARCH_TILT_DEG = 60.0  # a searched fit may tilt the camera's y axis this far (upright cameras)
 MAX_SEARCH_VIOLATION = 0.02  # ... and see through at most this share: 24 starts give more chances to a slid fit
-SEARCH_WITHOUT_IDS = True
-FREE_SPACE_SCALE = 0.1       # seen-through share at which a searched fit without ids scores 0
 TILTED_WEIGHT = 0.8         # edge weight factor of a fit that tilts it further: another view's fit is preferred
 
 
@@ -105,56 +103,28 @@ class IdAgreement:
         return float(np.mean(shares)) if len(shares) >= LABEL_MIN_IDS else 0.0
 
 
-class SeenSpace:
-    """What one view saw, for free-space checks: the nearest seen depth per pixel (5 x 5 minimum:
-    grazing surfaces change depth quickly per pixel) and its certain background (7 x 7 dilation of
-    the invalid pixels). O(H W) to build."""
+def _free_space_violation(points: np.ndarray, frame: Frame, pointmap: Pointmap, size: float) -> float:
+    """Fraction of ``points`` (in ``frame``'s camera frame) that land in front of the surface the
+    camera saw (or on certain background): a wrong registration puts surfaces where this view saw
+    through. O(N + H W)."""
+    import cv2
 
-    def __init__(self, frame: Frame, pointmap: Pointmap) -> None:
-        import cv2
-
-        h, w = pointmap.height, pointmap.width
-        valid = pointmap.valid.reshape(h, w)
-        depth = np.where(valid, np.nan_to_num(pointmap.points[:, 2].reshape(h, w)), np.inf)
-        self.depth = cv2.erode(depth.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.float64)
-        self.background = cv2.dilate(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0
-        self.K = frame.camera.K
-
-    def violation(self, points: np.ndarray, size: float) -> float:
-        """Fraction of ``points`` (in this view's camera frame) that land in front of the surface the
-        camera saw (or on certain background); 0 when fewer than 30 land in the image. O(N)."""
-        h, w = self.depth.shape
-        points = points[points[:, 2] > 1e-9]
-        uv = points @ self.K.T
-        col, row = np.rint(uv[:, 0] / uv[:, 2]).astype(int), np.rint(uv[:, 1] / uv[:, 2]).astype(int)
-        inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-        if inside.sum() < 30:
-            return 0.0
-        row, col, z = row[inside], col[inside], points[inside, 2]
-        seen = self.depth[row, col]
-        bad = self.background[row, col] | (np.isfinite(seen) & (z < seen - 2 * THRESHOLD_FRACTION * size))
-        return float(bad.mean())
-
-
-class FreeSpaceAgreement:
-    """A source -> target transform's agreement with what both views saw: 1 - (the larger share of
-    either view's points that the other saw through) / ``FREE_SPACE_SCALE``, clipped at 0. Used
-    to rank the searched fits when no mask ids vouch. O(S) per call on <= LABEL_SAMPLE points."""
-
-    def __init__(self, j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray],
-                 size: float, seed: int) -> None:
-        rng = np.random.default_rng(seed)
-        pick = lambda cloud: cloud[np.sort(rng.choice(len(cloud), min(len(cloud), LABEL_SAMPLE), replace=False))]
-        self.source, self.target = pick(clouds[j]), pick(clouds[i])
-        self.seen_source, self.seen_target = SeenSpace(frames[j], pointmaps[j]), SeenSpace(frames[i], pointmaps[i])
-        self.size = size
-
-    def violation(self, transform: np.ndarray) -> float:
-        return max(self.seen_target.violation(apply_transform(transform, self.source), self.size),
-                   self.seen_source.violation(apply_transform(np.linalg.inv(transform), self.target), self.size))
-
-    def __call__(self, transform: np.ndarray) -> float:
-        return max(0.0, 1.0 - self.violation(transform) / FREE_SPACE_SCALE)
+    h, w = pointmap.height, pointmap.width
+    valid = pointmap.valid.reshape(h, w)
+    # Nearest seen surface over a 5x5 window: grazing surfaces change depth quickly per pixel.
+    depth = np.where(valid, np.nan_to_num(pointmap.points[:, 2].reshape(h, w)), np.inf)
+    depth = cv2.erode(depth.astype(np.float32), np.ones((5, 5), np.uint8)).astype(np.float64)
+    background = cv2.dilate(valid.astype(np.uint8), np.ones((7, 7), np.uint8)) == 0
+    points = points[points[:, 2] > 1e-9]
+    uv = points @ frame.camera.K.T
+    col, row = np.rint(uv[:, 0] / uv[:, 2]).astype(int), np.rint(uv[:, 1] / uv[:, 2]).astype(int)
+    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    if inside.sum() < 30:
+        return 0.0
+    row, col, z = row[inside], col[inside], points[inside, 2]
+    seen = depth[row, col]
+    bad = background[row, col] | (np.isfinite(seen) & (z < seen - 2 * THRESHOLD_FRACTION * size))
+    return float(bad.mean())
 
 
 def geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray],
@@ -178,20 +148,13 @@ def geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap]
     agreement = None
     if ids is not None and ids[j] is not None and ids[i] is not None:
         agreement = IdAgreement(clouds[j], ids[j], clouds[i], ids[i], 2 * THRESHOLD_FRACTION * size, seed)
-    source_centre, target_centre = clouds[j].mean(axis=0), clouds[i].mean(axis=0)
-    starts = [make_transform(turn, target_centre - turn @ source_centre) for turn in turns()]
     if agreement is None or not agreement.usable:
-        if plain is not None or not SEARCH_WITHOUT_IDS:
-            return plain
-        free = FreeSpaceAgreement(j, i, frames, pointmaps, clouds, size, seed)
-        searched = _checked(register_rigid(clouds[j], clouds[i], colors[0], colors[1], seed=seed, hypotheses=starts,
-                                           agreement=free), j, i, frames, pointmaps, clouds, size, MAX_SEARCH_VIOLATION)
-        if searched is not None and tilt_deg(searched[0]) <= MAX_SEARCH_TILT_DEG:
-            return searched
-        return None
+        return plain
     plain_agreement = agreement(plain[0]) if plain is not None else 0.0
     if plain_agreement >= LABEL_AGREEMENT:
         return plain
+    source_centre, target_centre = clouds[j].mean(axis=0), clouds[i].mean(axis=0)
+    starts = [make_transform(turn, target_centre - turn @ source_centre) for turn in turns()]
     labelled = _checked(register_rigid(clouds[j], clouds[i], colors[0], colors[1], seed=seed, hypotheses=starts,
                                        agreement=agreement), j, i, frames, pointmaps, clouds, size, MAX_SEARCH_VIOLATION)
     if (labelled is not None and agreement(labelled[0]) >= LABEL_AGREEMENT
@@ -211,8 +174,9 @@ def _checked(result, j: int, i: int, frames: list[Frame], pointmaps: list[Pointm
         return None
     forward = np.asarray(result.transform, dtype=np.float64)
     backward = np.linalg.inv(forward)
-    violation = max(SeenSpace(frames[i], pointmaps[i]).violation(apply_transform(forward, clouds[j]), size),
-                    SeenSpace(frames[j], pointmaps[j]).violation(apply_transform(backward, clouds[i]), size))
+    violation = max(
+        _free_space_violation(apply_transform(forward, clouds[j]), frames[i], pointmaps[i], size),
+        _free_space_violation(apply_transform(backward, clouds[i]), frames[j], pointmaps[j], size))
     if violation > max_violation:
         return None
     upright = 1.0 if tilt_deg(forward) <= MAX_SEARCH_TILT_DEG else TILTED_WEIGHT
