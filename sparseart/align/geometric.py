@@ -7,13 +7,13 @@ neither view sees through the other's surfaces (free-space check).
 With the user's masks, when the two views share mask ids that name the same parts (a renderer's
 or an annotation tool's part ids), the ids are evidence too: a box-like object turned a quarter
 round lays its walls onto each other at a high overlap and without seeing through anything, but it
-lays the drawer fronts onto a side wall. When the plain fit's ids disagree (or it was rejected),
-the views are registered again from :func:`turns` (24 turns about the centroids, for roughly
-upright cameras) ranked by overlap x id agreement, and that fit is kept only when its ids agree
-(``LABEL_AGREEMENT``), it keeps the camera roughly upright (``MAX_SEARCH_TILT_DEG``) and it sees
-through less than the plain fit may (``MAX_SEARCH_VIOLATION``; measured: the searched fits of two
-ovens' views that slid 4 % of the object along its front saw through 3.0-3.2 %, the right fits of
-a cabinet's and a dishwasher's 0.0-1.0 %). Ids that do not
+lays the drawer fronts onto a side wall. A plain fit whose ids disagree is held back; when no
+plain fit places a view, the view is registered again from :func:`turns` (8 turns about the
+centroids, for roughly upright cameras) ranked by overlap x id agreement, and that fit is kept
+only when its ids agree (``LABEL_AGREEMENT``), it keeps the camera roughly upright
+(``MAX_SEARCH_TILT_DEG``) and it sees through less than a plain fit may (``MAX_SEARCH_VIOLATION``;
+measured: the searched fits of two ovens' views that slid 4 % of the object along its front saw
+through 3.0-3.2 %, the right fits of a cabinet's and a dishwasher's 0.0-1.0 %). Ids that do not
 name parts across images (a per-image segmenter's 1..k) never agree, so nothing changes for them.
 """
 from __future__ import annotations
@@ -40,19 +40,20 @@ LABEL_MIN_POINTS = 30
 LABEL_MIN_ID_NEAR = 10   # an id counts in the agreement when this many of its points land near a labelled point
 LABEL_SAMPLE = 2000      # labelled source points sampled for the agreement
 MAX_SEARCH_TILT_DEG = 60.0  # a searched fit may tilt the camera's y axis this far (upright cameras)
-MAX_SEARCH_VIOLATION = 0.02  # ... and see through at most this share: 24 starts give more chances to a slid fit
+MAX_SEARCH_VIOLATION = 0.02  # ... and see through at most this share: 8 starts give more chances to a slid fit
 TILTED_WEIGHT = 0.8         # edge weight factor of a fit that tilts it further: another view's fit is preferred
 
 
 @lru_cache(maxsize=1)
 def turns() -> tuple[np.ndarray, ...]:
-    """The 24 start rotations of the labelled search, (3, 3) float64 each: turns about the camera's
-    y axis in 45 deg steps, each tilted by -30, 0 or +30 deg about its x axis. Cameras around an
-    object (a phone, a robot head) stay roughly upright and differ mostly by a turn about the
-    vertical, which is near image y; a quarter roll about the optical axis is not searched (it
-    lays a square front onto itself and a box's top onto its side, ids and all)."""
-    return tuple(Rotation.from_euler("xy", [tilt, yaw], degrees=True).as_matrix()
-                 for yaw in range(0, 360, 45) for tilt in (-30.0, 0.0, 30.0))
+    """The 8 start rotations of the labelled search, (3, 3) float64 each: turns about the camera's
+    y axis in 45 deg steps. Cameras around an object (a phone, a robot head) stay roughly upright
+    and differ mostly by a turn about the vertical, which is near image y; ICP takes a start within
+    about 22 deg of the answer the rest of the way (measured: the same fits as 24 starts with
+    +-30 deg tilts on the cabinet, the toaster and the dishwasher, at a third of the cost). A quarter
+    roll about the optical axis is not searched: it lays a square front onto itself and a box's top
+    onto its side, ids and all."""
+    return tuple(Rotation.from_euler("y", yaw, degrees=True).as_matrix() for yaw in range(0, 360, 45))
 
 
 def tilt_deg(transform: np.ndarray) -> float:
@@ -71,35 +72,40 @@ def view_mask_ids(frame: Frame, pointmap: Pointmap) -> np.ndarray | None:
 
 class IdAgreement:
     """How well a source -> target transform lays each mask id onto the same id: of the sampled
-    labelled source points that land within ``distance`` of a labelled target point, the share whose
-    ids are equal, averaged over the ids (each id that lands near on at least ``LABEL_MIN_ID_NEAR``
-    points weighs the same: a large static body agreeing with itself must not outvote the drawers
-    it is laid onto). Only ids both views carry count; fewer than ``LABEL_MIN_IDS`` ids landing near
-    is no evidence (0: a turn that lays one id onto itself and the others onto nothing proves
-    nothing). O(S log M) per call for S <= LABEL_SAMPLE."""
+    labelled source points that land within ``distance`` of a labelled target point, the share that
+    also land within ``distance`` of a target point of their own id, averaged over the ids (each id
+    that lands near on at least ``LABEL_MIN_ID_NEAR`` points weighs the same: a large static body
+    agreeing with itself must not outvote the drawers it is laid onto). Asking for the own id
+    nearby rather than the nearest point's id keeps a thin part beside the body (a lever, a handle)
+    agreeing at the true pose. Only ids both views carry count; fewer than ``LABEL_MIN_IDS`` ids
+    landing near is no evidence (0: a turn that lays one id onto itself and the others onto nothing
+    proves nothing). O(S log M) per call for S <= LABEL_SAMPLE."""
 
     def __init__(self, source: np.ndarray, source_ids: np.ndarray, target: np.ndarray, target_ids: np.ndarray,
                  distance: float, seed: int) -> None:
-        shared = [i for i in np.intersect1d(source_ids[source_ids > 0], target_ids[target_ids > 0])
+        shared = [int(i) for i in np.intersect1d(source_ids[source_ids > 0], target_ids[target_ids > 0])
                   if min((source_ids == i).sum(), (target_ids == i).sum()) >= LABEL_MIN_POINTS]
         self.usable = len(shared) >= LABEL_MIN_IDS
         if not self.usable:
             return
-        on_source, on_target = np.isin(source_ids, shared), np.isin(target_ids, shared)
-        pick = np.flatnonzero(on_source)
+        pick = np.flatnonzero(np.isin(source_ids, shared))
         if len(pick) > LABEL_SAMPLE:
             pick = np.sort(np.random.default_rng(seed).choice(pick, LABEL_SAMPLE, replace=False))
         self.source, self.source_ids = source[pick], source_ids[pick]
-        self.tree, self.target_ids = cKDTree(target[on_target]), target_ids[on_target]
+        self.tree = cKDTree(target[np.isin(target_ids, shared)])
+        self.own = {i: cKDTree(target[target_ids == i]) for i in shared}
         self.distance = distance
 
     def __call__(self, transform: np.ndarray) -> float:
-        distance, index = self.tree.query(apply_transform(transform, self.source), distance_upper_bound=self.distance)
-        near = np.isfinite(distance)
+        moved = apply_transform(transform, self.source)
+        near = np.isfinite(self.tree.query(moved, distance_upper_bound=self.distance)[0])
         if near.sum() < LABEL_MIN_POINTS:
             return 0.0
-        ids, same = self.source_ids[near], self.source_ids[near] == self.target_ids[index[near]]
-        shares = [same[ids == i].mean() for i in np.unique(ids) if (ids == i).sum() >= LABEL_MIN_ID_NEAR]
+        shares = []
+        for i, own in self.own.items():
+            landed = near & (self.source_ids == i)
+            if landed.sum() >= LABEL_MIN_ID_NEAR:
+                shares.append(np.isfinite(own.query(moved[landed], distance_upper_bound=self.distance)[0]).mean())
         return float(np.mean(shares)) if len(shares) >= LABEL_MIN_IDS else 0.0
 
 
@@ -128,39 +134,78 @@ def _free_space_violation(points: np.ndarray, frame: Frame, pointmap: Pointmap, 
 
 
 def geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray],
-                  size: float, seed: int, ids: list[np.ndarray | None] | None = None,
-                  ) -> tuple[np.ndarray, float, float] | None:
+                  size: float, seed: int) -> tuple[np.ndarray, float, float] | None:
     """Geometric fallback view j -> view i for metric clouds in their camera frames
     (:func:`sparseart.geometry.icp.register_rigid`: PCA/FPFH hypotheses + coloured ICP).
 
     None for planar clouds (they slide), small overlap, or when either view sees through the other
     one's surfaces (free-space check, which rejects the turned-around fits of symmetric objects).
-    ids: per view, the mask id of each cloud point (:func:`view_mask_ids`) or None: when views j and
-    i share named ids, the labelled search of the module docstring runs where the plain fit's ids
-    disagree. Returns ((4, 4) j -> i, overlap fraction, edge weight in [0, 1)).
-    O(N log N + H W); the labelled search adds 24 coarse ICPs on <= 2000 points."""
+    Returns ((4, 4) j -> i, overlap fraction, edge weight in [0, 1)). O(N log N + H W)."""
     if min(spread(clouds[i])[2], spread(clouds[j])[2]) < PLANAR_FRACTION * size:
         return None
-    colors = [frames[k].rgb.reshape(-1, 3)[pointmaps[k].valid & np.isfinite(pointmaps[k].points).all(axis=1)]
-              / 255.0 for k in (j, i)]
-    plain = _checked(register_rigid(clouds[j], clouds[i], colors[0], colors[1], seed=seed), j, i, frames,
-                     pointmaps, clouds, size)
-    agreement = None
-    if ids is not None and ids[j] is not None and ids[i] is not None:
-        agreement = IdAgreement(clouds[j], ids[j], clouds[i], ids[i], 2 * THRESHOLD_FRACTION * size, seed)
-    if agreement is None or not agreement.usable:
-        return plain
-    plain_agreement = agreement(plain[0]) if plain is not None else 0.0
-    if plain_agreement >= LABEL_AGREEMENT:
-        return plain
-    source_centre, target_centre = clouds[j].mean(axis=0), clouds[i].mean(axis=0)
-    starts = [make_transform(turn, target_centre - turn @ source_centre) for turn in turns()]
-    labelled = _checked(register_rigid(clouds[j], clouds[i], colors[0], colors[1], seed=seed, hypotheses=starts,
-                                       agreement=agreement), j, i, frames, pointmaps, clouds, size, MAX_SEARCH_VIOLATION)
-    if (labelled is not None and agreement(labelled[0]) >= LABEL_AGREEMENT
-            and tilt_deg(labelled[0]) <= MAX_SEARCH_TILT_DEG):
-        return labelled
-    return plain
+    return _checked(register_rigid(clouds[j], clouds[i], *_colours(j, i, frames, pointmaps), seed=seed), j, i,
+                    frames, pointmaps, clouds, size)
+
+
+class GeometricEdges:
+    """The geometric fallback's edges between views, each computed once (module docstring).
+
+    ``plain(j, i, size)``: :func:`geometry_edge`, unless the mask ids disagree with it (then None).
+    ``searched(j, i, size)``: where the ids are usable, the fit of the labelled search when the ids
+    vouch for it, else the plain fit even if its ids disagree (a last resort); None without ids.
+    Callers ask for searched edges only when no plain edge places a view: the search costs 8
+    coarse ICPs on <= 2000 points.
+
+    ids: per view, the mask id of each cloud point (:func:`view_mask_ids`) or None."""
+
+    def __init__(self, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray], seed: int,
+                 ids: list[np.ndarray | None]) -> None:
+        self.frames, self.pointmaps, self.clouds, self.seed, self.ids = frames, pointmaps, clouds, seed, ids
+        self._plain: dict[tuple[int, int], tuple] = {}
+        self._searched: dict[tuple[int, int], tuple | None] = {}
+
+    def _plain_and_ids(self, j: int, i: int, size: float) -> tuple:
+        if (j, i) not in self._plain:
+            edge = geometry_edge(j, i, self.frames, self.pointmaps, self.clouds, size, self.seed)
+            agreement = None
+            if self.ids[j] is not None and self.ids[i] is not None:
+                agreement = IdAgreement(self.clouds[j], self.ids[j], self.clouds[i], self.ids[i],
+                                        2 * THRESHOLD_FRACTION * size, self.seed)
+                agreement = agreement if agreement.usable else None
+            vouched = None if agreement is None or edge is None else agreement(edge[0]) >= LABEL_AGREEMENT
+            self._plain[j, i] = (edge, agreement, vouched)
+        return self._plain[j, i]
+
+    def plain(self, j: int, i: int, size: float) -> tuple[np.ndarray, float, float] | None:
+        edge, _, vouched = self._plain_and_ids(j, i, size)
+        return edge if vouched is not False else None
+
+    def searched(self, j: int, i: int, size: float) -> tuple[np.ndarray, float, float] | None:
+        edge, agreement, vouched = self._plain_and_ids(j, i, size)
+        if agreement is None or vouched:
+            return None
+        if (j, i) not in self._searched:
+            self._searched[j, i] = self._search(j, i, size, agreement) or edge
+        return self._searched[j, i]
+
+    def _search(self, j: int, i: int, size: float, agreement: "IdAgreement") -> tuple[np.ndarray, float, float] | None:
+        clouds = self.clouds
+        if min(spread(clouds[i])[2], spread(clouds[j])[2]) < PLANAR_FRACTION * size:
+            return None
+        source_centre, target_centre = clouds[j].mean(axis=0), clouds[i].mean(axis=0)
+        starts = [make_transform(turn, target_centre - turn @ source_centre) for turn in turns()]
+        result = register_rigid(clouds[j], clouds[i], *_colours(j, i, self.frames, self.pointmaps), seed=self.seed,
+                                hypotheses=starts, agreement=agreement)
+        edge = _checked(result, j, i, self.frames, self.pointmaps, clouds, size, MAX_SEARCH_VIOLATION)
+        if edge is None or agreement(edge[0]) < LABEL_AGREEMENT or tilt_deg(edge[0]) > MAX_SEARCH_TILT_DEG:
+            return None
+        return edge
+
+
+def _colours(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap]) -> list[np.ndarray]:
+    """(K, 3) float64 colours in [0, 1] of the cloud points of views j and i. O(H W)."""
+    return [frames[k].rgb.reshape(-1, 3)[pointmaps[k].valid & np.isfinite(pointmaps[k].points).all(axis=1)]
+            / 255.0 for k in (j, i)]
 
 
 def _checked(result, j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray],

@@ -19,7 +19,7 @@ become the labeler's motion hints). :func:`register_scene`:
    (and, with masks, the object) on each other, and must stand out among the plausible ones --
    repetitive texture (tiled floors, brick walls) otherwise wins with a shifted transform;
 3. for metric clouds, a view features leave out gets the geometric fallback to a view of its state
-   (:func:`sparseart.align.geometric.geometry_edge`) and keeps that relative pose;
+   (:class:`sparseart.align.geometric.GeometricEdges`) and keeps that relative pose;
 4. solves all feature-placed poses jointly: iteratively reweighted Gauss-Newton (soft-L1 weights)
    over the inlier matches of every pair, a rotation vector + translation per view, plus a
    per-view log depth scale for noisy metric depth (prior ``SCALE_PRIOR``, bound ``SCALE_LIMIT``;
@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sparseart.align.features import PLANAR_FRACTION, THRESHOLD_FRACTION, FeatureMatches, match_view_features, view_features
-from sparseart.align.geometric import geometry_edge, view_mask_ids
+from sparseart.align.geometric import GeometricEdges, view_mask_ids
 from sparseart.align.noise import RHO_MAX, depth_roughness, estimate_rho, thresholds
 from sparseart.align.ransac import DEGENERATE_FRACTION, AlignmentError, Similarity, ransac_similarity, umeyama
 from sparseart.geometry.clouds import scene_size, spread, valid_points
@@ -841,39 +841,41 @@ def _group_rho(pairs: list[PairMatches], views: list[int], poses: list[np.ndarra
 
 def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed, reasons, warnings) -> None:
     """Metric views no feature merge reached: the geometric registration to a registered view of
-    their state (best overlap wins), composed with that view's pose. The user's mask ids, when the
-    frames have masks, vouch for or against a fit (:func:`~sparseart.align.geometric.geometry_edge`)."""
-    ids = [view_mask_ids(f, m) for f, m in zip(frames, maps)]
-    edges: dict[tuple[int, int], tuple | None] = {}
-    rejected: set[int] = set()
-    while True:  # a view placed by geometry can reach the views tried before it: go round again
-        placed = False
-        for v in range(len(frames)):
-            if v in registered:
-                continue
-            same = [u for u in sorted(registered) if (u < n_start) == (v < n_start)]
-            # the size of the view's own state (the other state's moved part would change it)
-            own = [clouds[u] for u in range(len(frames)) if (u < n_start) == (v < n_start) and len(clouds[u])]
-            state_size = scene_size(np.concatenate(own)) if own else size
-            for u in same:
-                if (v, u) not in edges:
-                    edges[v, u] = geometry_edge(v, u, frames, maps, clouds, state_size, seed, ids)
-            found = [(u, edges[v, u]) for u in same if edges[v, u] is not None]
-            if not found:
-                rejected.add(v)
-                continue
-            u, (transform, overlap, _) = max(found, key=lambda item: item[1][2])
-            poses[v] = poses[u] @ transform
-            registered.add(v)
-            rejected.discard(v)
-            placed = True
-            info[v].how = "geometry"
-            warnings.append(f"{frames[v].image}: registered to {frames[u].image} by geometry only, "
-                            f"{overlap:.0%} overlap")
-        if not placed:
-            break
-    for v in sorted(rejected):
-        reasons[v].append("geometric registration rejected (planar, little overlap or sees through)")
+    their state (best edge weight wins), composed with that view's pose. Plain fits first, round
+    after round (a view placed by geometry can reach the views tried before it); the mask ids'
+    search (:class:`~sparseart.align.geometric.GeometricEdges`) only when no plain fit places any
+    view, and then plain fits again from what it placed."""
+    edges = GeometricEdges(frames, maps, clouds, seed, [view_mask_ids(f, m) for f, m in zip(frames, maps)])
+    while _place_by_geometry(edges.plain, frames, clouds, poses, registered, info, n_start, size, warnings) or \
+            _place_by_geometry(edges.searched, frames, clouds, poses, registered, info, n_start, size, warnings):
+        pass
+    for v in range(len(frames)):
+        if v not in registered:
+            reasons[v].append("geometric registration rejected (planar, little overlap or sees through)")
+
+
+def _place_by_geometry(edge_of, frames, clouds, poses, registered, info, n_start, size, warnings) -> bool:
+    """One pass over the unregistered views in order: each goes where its best edge to a registered
+    view of its state (``edge_of(v, u, state_size)``) puts it. True when a view was placed."""
+    placed = False
+    for v in range(len(frames)):
+        if v in registered:
+            continue
+        same = [u for u in sorted(registered) if (u < n_start) == (v < n_start)]
+        # the size of the view's own state (the other state's moved part would change it)
+        own = [clouds[u] for u in range(len(frames)) if (u < n_start) == (v < n_start) and len(clouds[u])]
+        state_size = scene_size(np.concatenate(own)) if own else size
+        found = [(u, edge) for u in same if (edge := edge_of(v, u, state_size)) is not None]
+        if not found:
+            continue
+        u, (transform, overlap, _) = max(found, key=lambda item: item[1][2])
+        poses[v] = poses[u] @ transform
+        registered.add(v)
+        placed = True
+        info[v].how = "geometry"
+        warnings.append(f"{frames[v].image}: registered to {frames[u].image} by geometry only, "
+                        f"{overlap:.0%} overlap")
+    return placed
 
 
 def _polish(frames, clouds, poses, registered, info, n_start, size, warnings) -> None:

@@ -9,10 +9,11 @@ With mask ids that name parts in both states, ``align_on_static`` lets them vouc
 registration as the geometric view fallback does (:mod:`sparseart.align.geometric`): a box-like
 static part turned a quarter round fits itself well but lays the other parts' ids onto its walls.
 When fewer than ``LABEL_AGREEMENT`` of the overlapping labelled points agree, the static part is
-registered again from the 24 turns of :func:`~sparseart.align.geometric.turns`, ranked by static overlap x id agreement, and that fit is kept
-when its score beats the first one's by ``STATE_SEARCH_MARGIN``. Unlike two views of one state,
-the states do not agree fully even at the true pose (a part that moved lands on the body), so
-the score is compared, not held to ``LABEL_AGREEMENT``.
+registered again from the turns of :func:`~sparseart.align.geometric.turns`, ranked by static
+overlap x id agreement, and that fit is kept when its score beats the first one's by
+``STATE_SEARCH_MARGIN``. Unlike two views of one state, the states do not agree fully even at the
+true pose (a part that moved lands on the body), so the score is compared, not held to
+``LABEL_AGREEMENT``.
 """
 from __future__ import annotations
 
@@ -81,7 +82,7 @@ def mask_ids(cloud: LabelledCloud) -> np.ndarray:
 def _vouched_by_mask_ids(start: LabelledCloud, end: LabelledCloud, pair: tuple[np.ndarray, np.ndarray],
                          registration, warnings: list[str], seed: int):
     """The static registration end -> start, or a better one the mask ids vouch for (module doc).
-    O(N log N) for the agreement; the search adds 24 coarse ICPs on <= 2000 points."""
+    O(N log N) for the agreement; the search adds 8 coarse ICPs on <= 2000 points."""
     if not start.segment_source or not end.segment_source:
         return registration
     size = scene_size(start.points)
