@@ -608,6 +608,7 @@ def test_a_textureless_cabinet_unposed_is_registered_through_its_mask_ids(tmp_pa
     gt = render_partnet_scene(TWINS_DIR / "drawer_19179_multi", scene_dir, views=3, seed=0, posed=False)
     result = sparseart.run(scene_dir)
     assert not any("could not be registered" in w for w in result.warnings), result.warnings
+    assert any("its mask ids agreeing" in w for w in result.warnings), result.warnings
     rows = evaluate(result, load_scene(scene_dir), gt)
     assert len(rows) == 2
     for row in rows:

@@ -154,7 +154,7 @@ class GeometricEdges:
     ``searched(j, i, size)``: where the ids are usable, the fit of the labelled search when the ids
     vouch for it, else the plain fit even if its ids disagree (a last resort); None without ids.
     Callers ask for searched edges only when no plain edge places a view: the search costs 8
-    coarse ICPs on <= 2000 points.
+    coarse ICPs on <= 2000 points. ``notes[j, i]`` says which of the two a searched edge is.
 
     ids: per view, the mask id of each cloud point (:func:`view_mask_ids`) or None."""
 
@@ -163,6 +163,7 @@ class GeometricEdges:
         self.frames, self.pointmaps, self.clouds, self.seed, self.ids = frames, pointmaps, clouds, seed, ids
         self._plain: dict[tuple[int, int], tuple] = {}
         self._searched: dict[tuple[int, int], tuple | None] = {}
+        self.notes: dict[tuple[int, int], str] = {}     # (j, i) -> how a searched edge came about
 
     def _plain_and_ids(self, j: int, i: int, size: float) -> tuple:
         if (j, i) not in self._plain:
@@ -185,7 +186,10 @@ class GeometricEdges:
         if agreement is None or vouched:
             return None
         if (j, i) not in self._searched:
-            self._searched[j, i] = self._search(j, i, size, agreement) or edge
+            found = self._search(j, i, size, agreement)
+            self.notes[j, i] = ("found from upright turns, its mask ids agreeing" if found is not None
+                                else "its mask ids disagree (no better fit found)")
+            self._searched[j, i] = found or edge
         return self._searched[j, i]
 
     def _search(self, j: int, i: int, size: float, agreement: "IdAgreement") -> tuple[np.ndarray, float, float] | None:

@@ -847,16 +847,19 @@ def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed
     view, and then plain fits again from what it placed."""
     edges = GeometricEdges(frames, maps, clouds, seed, [view_mask_ids(f, m) for f, m in zip(frames, maps)])
     while _place_by_geometry(edges.plain, frames, clouds, poses, registered, info, n_start, size, warnings) or \
-            _place_by_geometry(edges.searched, frames, clouds, poses, registered, info, n_start, size, warnings):
+            _place_by_geometry(edges.searched, frames, clouds, poses, registered, info, n_start, size, warnings,
+                               edges.notes):
         pass
     for v in range(len(frames)):
         if v not in registered:
             reasons[v].append("geometric registration rejected (planar, little overlap or sees through)")
 
 
-def _place_by_geometry(edge_of, frames, clouds, poses, registered, info, n_start, size, warnings) -> bool:
+def _place_by_geometry(edge_of, frames, clouds, poses, registered, info, n_start, size, warnings,
+                       notes: dict | None = None) -> bool:
     """One pass over the unregistered views in order: each goes where its best edge to a registered
-    view of its state (``edge_of(v, u, state_size)``) puts it. True when a view was placed."""
+    view of its state (``edge_of(v, u, state_size)``) puts it; ``notes[v, u]`` joins the warning.
+    True when a view was placed."""
     placed = False
     for v in range(len(frames)):
         if v in registered:
@@ -873,8 +876,9 @@ def _place_by_geometry(edge_of, frames, clouds, poses, registered, info, n_start
         registered.add(v)
         placed = True
         info[v].how = "geometry"
+        note = f"; {notes[v, u]}" if notes and (v, u) in notes else ""
         warnings.append(f"{frames[v].image}: registered to {frames[u].image} by geometry only, "
-                        f"{overlap:.0%} overlap")
+                        f"{overlap:.0%} overlap{note}")
     return placed
 
 
