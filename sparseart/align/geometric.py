@@ -34,7 +34,7 @@ GEOMETRY_MIN_OVERLAP = 0.5       # geometric fallback: accepted overlap fraction
 
 MAX_FREE_SPACE_VIOLATION = 0.05  # geometric fallback: accepted share of points in seen-through space
 
-LABEL_AGREEMENT = 0.8    # share of overlapping labelled points whose mask ids agree: a fit the ids vouch for
+LABEL_AGREEMENT = 0.8    # IdAgreement at or above this: a fit the mask ids vouch for
 LABEL_MIN_IDS = 2        # mask ids both views must carry (each on LABEL_MIN_POINTS points) to be evidence
 LABEL_MIN_POINTS = 30
 LABEL_MIN_ID_NEAR = 10   # an id counts in the agreement when this many of its points land near a labelled point
@@ -49,8 +49,8 @@ def turns() -> tuple[np.ndarray, ...]:
     """The 8 start rotations of the labelled search, (3, 3) float64 each: turns about the camera's
     y axis in 45 deg steps. Cameras around an object (a phone, a robot head) stay roughly upright
     and differ mostly by a turn about the vertical, which is near image y; ICP takes a start within
-    about 22 deg of the answer the rest of the way (measured: the same fits as 24 starts with
-    +-30 deg tilts on the cabinet, the toaster and the dishwasher, at a third of the cost). A quarter
+    about 22 deg of the answer the rest of the way (measured: the same joints as 24 starts with
+    +-30 deg tilts on the two-drawer cabinet and the toaster, at a third of the search's cost). A quarter
     roll about the optical axis is not searched: it lays a square front onto itself and a box's top
     onto its side, ids and all."""
     return tuple(Rotation.from_euler("y", yaw, degrees=True).as_matrix() for yaw in range(0, 360, 45))
