@@ -41,9 +41,8 @@ block (profiling).
 """
 from __future__ import annotations
 
-import threading
 import time
-from collections import OrderedDict, defaultdict
+from collections import defaultdict
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass
@@ -56,6 +55,7 @@ from sparseart.geometry.transforms import (
     transform_from_prismatic,
     transform_from_revolute,
 )
+from sparseart.joints.cache import LRUCache
 from sparseart.joints.config import BUDGETS, UNCERTAINTY_FLOOR, FitConfig
 from sparseart.joints.models import initial_models
 from sparseart.joints.noise_floor import residual_floor
@@ -142,9 +142,8 @@ class _Fitted:
     diagnostics: dict
 
 
-_fitted: OrderedDict[tuple, _Fitted] = OrderedDict()
-_fitted_lock = threading.Lock()
 FITTED_CACHE_SIZE = 16
+_fitted: LRUCache[_Fitted] = LRUCache(FITTED_CACHE_SIZE)
 
 
 def fit_joint(
@@ -204,18 +203,12 @@ def fit_joint(
         seed_key = (fingerprint(np.asarray(initial_transform, dtype=np.float64)) if initial_transform is not None
                     else tuple(None if c is None else fingerprint(np.asarray(c)) for c in (start_colors, end_colors)))
         key = (part.key, seed_key, joint_type, frame_error)
-    with _fitted_lock:
-        fitted = _fitted.get(key) if key is not None else None
-        if fitted is not None:
-            _fitted.move_to_end(key)
+    fitted = _fitted.get(key) if key is not None else None
     if fitted is None:
         fitted = _fit_models(part, joint_type, initial_transform, start_colors, end_colors, config, clock,
                              turn=frame_turn(*frame_error) if frame_error is not None else 0.0)
         if key is not None:
-            with _fitted_lock:
-                _fitted[key] = fitted
-                while len(_fitted) > FITTED_CACHE_SIZE:
-                    _fitted.popitem(last=False)
+            _fitted.put(key, fitted)
     diagnostics: dict = {"scale": part.scale, "n_start": len(part.start), "n_end": len(part.end),
                          "n_start_input": part.input_counts[0], "n_end_input": part.input_counts[1],
                          "config": asdict(config), **fitted.diagnostics}

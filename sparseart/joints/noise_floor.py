@@ -18,12 +18,10 @@ do move the joint).
 """
 from __future__ import annotations
 
-import threading
-from collections import OrderedDict
-
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sparseart.joints.cache import LRUCache
 from sparseart.joints.clean import estimate_normals
 from sparseart.joints.config import FitConfig
 from sparseart.joints.optimise import one_to_one_pairs
@@ -31,10 +29,7 @@ from sparseart.joints.part import NORMAL_NEIGHBOURS, PartData, make_sample
 
 MIN_FLOOR_POINTS = 30      # fewer points per half: no floor (0, the raw residual counts whole)
 FLOOR_SEED_OFFSET = 7349   # the floor's own random generator: the fit's draws are untouched
-_CACHE_SIZE = 64
-
-_cache: OrderedDict[tuple, float] = OrderedDict()
-_lock = threading.Lock()
+_cache: LRUCache[float] = LRUCache(64)
 
 
 def residual_floor(part: PartData, config: FitConfig) -> float:
@@ -47,20 +42,15 @@ def residual_floor(part: PartData, config: FitConfig) -> float:
     n log n + the sparse matching) for W working and n = matching-sample points per state
     (~20-40 ms at n = 1500)."""
     key = part.key
-    if key is not None:
-        with _lock:
-            if key in _cache:
-                _cache.move_to_end(key)
-                return _cache[key]
+    cached = _cache.get(key) if key is not None else None
+    if cached is not None:
+        return cached
     rng = np.random.default_rng(config.seed + FLOOR_SEED_OFFSET)
     size = part.match.size
     floors = [state_floor(part.start, size, config, rng), state_floor(part.end, size, config, rng, part.end_tree)]
     value = float(np.sqrt(np.mean(np.square(floors)))) if all(f > 0 for f in floors) else 0.0
     if key is not None:
-        with _lock:
-            _cache[key] = value
-            while len(_cache) > _CACHE_SIZE:
-                _cache.popitem(last=False)
+        _cache.put(key, value)
     return value
 
 

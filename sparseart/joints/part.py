@@ -21,8 +21,6 @@ part (the candidate search runs one per seed motion) reuse it. The cache cannot 
 from __future__ import annotations
 
 import hashlib
-import threading
-from collections import OrderedDict
 from dataclasses import astuple, dataclass, replace
 
 import numpy as np
@@ -30,6 +28,7 @@ from scipy.spatial import cKDTree
 
 from sparseart.geometry.clouds import median_spacing
 from sparseart.geometry.sampling import random_subset
+from sparseart.joints.cache import LRUCache
 from sparseart.joints.clean import clean_part_points, estimate_normals
 from sparseart.joints.config import FitConfig
 from sparseart.joints.reliability import FitWarning, WarningCode, scatter_fraction
@@ -110,8 +109,7 @@ class PartData:
         return normalise @ np.asarray(transform, dtype=np.float64) @ denormalise
 
 
-_cache: OrderedDict[tuple, PartData] = OrderedDict()
-_cache_lock = threading.Lock()
+_cache: LRUCache[PartData] = LRUCache(CACHE_SIZE)
 
 
 def fingerprint(array: np.ndarray) -> tuple:
@@ -143,23 +141,17 @@ def prepare_part(start_points: np.ndarray, end_points: np.ndarray, config: FitCo
     key = (fingerprint(start_points), fingerprint(end_points), astuple(config))
     if confidences is not None:
         key += (fingerprint(confidences[0]), fingerprint(confidences[1]))
-    with _cache_lock:
-        hit = _cache.get(key)
-        if hit is not None:
-            _cache.move_to_end(key)
-            return hit
+    hit = _cache.get(key)
+    if hit is not None:
+        return hit
     part = replace(_prepare(start_points, end_points, config, confidences), key=key)
-    with _cache_lock:
-        _cache[key] = part
-        while len(_cache) > CACHE_SIZE:
-            _cache.popitem(last=False)
+    _cache.put(key, part)
     return part
 
 
 def clear_cache() -> None:
     """Forget every remembered ``PartData``."""
-    with _cache_lock:
-        _cache.clear()
+    _cache.clear()
 
 
 def _as_points(points: np.ndarray, name: str) -> np.ndarray:
