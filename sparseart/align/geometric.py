@@ -141,7 +141,7 @@ def geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap]
     None for planar clouds (they slide), small overlap, or when either view sees through the other
     one's surfaces (free-space check, which rejects the turned-around fits of symmetric objects).
     Returns ((4, 4) j -> i, overlap fraction, edge weight in [0, 1)). O(N log N + H W)."""
-    if min(spread(clouds[i])[2], spread(clouds[j])[2]) < PLANAR_FRACTION * size:
+    if _planar(j, i, clouds, size):
         return None
     return _checked(register_rigid(clouds[j], clouds[i], *_colours(j, i, frames, pointmaps), seed=seed), j, i,
                     frames, pointmaps, clouds, size)
@@ -194,7 +194,7 @@ class GeometricEdges:
 
     def _search(self, j: int, i: int, size: float, agreement: "IdAgreement") -> tuple[np.ndarray, float, float] | None:
         clouds = self.clouds
-        if min(spread(clouds[i])[2], spread(clouds[j])[2]) < PLANAR_FRACTION * size:
+        if _planar(j, i, clouds, size):
             return None
         source_centre, target_centre = clouds[j].mean(axis=0), clouds[i].mean(axis=0)
         starts = [make_transform(turn, target_centre - turn @ source_centre) for turn in turns()]
@@ -204,6 +204,12 @@ class GeometricEdges:
         if edge is None or agreement(edge[0]) < LABEL_AGREEMENT or tilt_deg(edge[0]) > MAX_SEARCH_TILT_DEG:
             return None
         return edge
+
+
+def _planar(j: int, i: int, clouds: list[np.ndarray], size: float) -> bool:
+    """Is either view's cloud planar (RMS spread along its third principal axis below
+    ``PLANAR_FRACTION`` of the size)? Planar clouds slide: no geometric fit. O(N)."""
+    return min(spread(clouds[i])[2], spread(clouds[j])[2]) < PLANAR_FRACTION * size
 
 
 def _colours(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap]) -> list[np.ndarray]:

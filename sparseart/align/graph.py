@@ -845,9 +845,16 @@ def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed
     after round (a view placed by geometry can reach the views tried before it); the mask ids'
     search (:class:`~sparseart.align.geometric.GeometricEdges`) only when no plain fit places any
     view, and then plain fits again from what it placed."""
+    if len(registered) == len(frames):
+        return
     edges = GeometricEdges(frames, maps, clouds, seed, [view_mask_ids(f, m) for f, m in zip(frames, maps)])
-    while _place_by_geometry(edges.plain, frames, clouds, poses, registered, info, n_start, size, warnings) or \
-            _place_by_geometry(edges.searched, frames, clouds, poses, registered, info, n_start, size, warnings,
+    # the size of each state's own views (the other state's moved part would change it)
+    sizes = {}
+    for is_start in (True, False):
+        own = [clouds[u] for u in range(len(frames)) if (u < n_start) == is_start and len(clouds[u])]
+        sizes[is_start] = scene_size(np.concatenate(own)) if own else size
+    while _place_by_geometry(edges.plain, frames, poses, registered, info, n_start, sizes, warnings) or \
+            _place_by_geometry(edges.searched, frames, poses, registered, info, n_start, sizes, warnings,
                                edges.notes):
         pass
     for v in range(len(frames)):
@@ -855,20 +862,17 @@ def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed
             reasons[v].append("geometric registration rejected (planar, little overlap or sees through)")
 
 
-def _place_by_geometry(edge_of, frames, clouds, poses, registered, info, n_start, size, warnings,
+def _place_by_geometry(edge_of, frames, poses, registered, info, n_start, sizes: dict[bool, float], warnings,
                        notes: dict | None = None) -> bool:
     """One pass over the unregistered views in order: each goes where its best edge to a registered
-    view of its state (``edge_of(v, u, state_size)``) puts it; ``notes[v, u]`` joins the warning.
-    True when a view was placed."""
+    view of its state (``edge_of(v, u, size of that state)``; ``sizes`` keyed by "is a start
+    view") puts it; ``notes[v, u]`` joins the warning. True when a view was placed."""
     placed = False
     for v in range(len(frames)):
         if v in registered:
             continue
         same = [u for u in sorted(registered) if (u < n_start) == (v < n_start)]
-        # the size of the view's own state (the other state's moved part would change it)
-        own = [clouds[u] for u in range(len(frames)) if (u < n_start) == (v < n_start) and len(clouds[u])]
-        state_size = scene_size(np.concatenate(own)) if own else size
-        found = [(u, edge) for u in same if (edge := edge_of(v, u, state_size)) is not None]
+        found = [(u, edge) for u in same if (edge := edge_of(v, u, sizes[v < n_start])) is not None]
         if not found:
             continue
         u, (transform, overlap, _) = max(found, key=lambda item: item[1][2])
