@@ -297,7 +297,7 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
         # known frame as cameras do: a part that moved is kept even when no static segment of the
         # object is seen in both states (a laptop base hidden behind its open lid).
         labels = labeler.label(start, end, scene, aligned=True, motion_hints=hints,
-                               posed=True if alignment == "features" else None)
+                               posed=True if alignment in ("features", "still") else None)
     if alignment in ("features", "model"):
         with clock.stage("align.static", f"static part: ICP polish of the {alignment} alignment"):
             end = polish_on_static(start, end, labels, warnings, seed=seed)
@@ -310,7 +310,7 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
     if options.second_opinion and isinstance(labeler, RuleBasedLabeler) and _labelled_by_motion(labels):
         with clock.stage("second_opinion", "no masks: labelled and fitted again with another seed"):
             _second_opinion(start, end, scene, labels, parts, labeler, hints, options, warnings,
-                            posed=True if alignment == "features" else None)
+                            posed=True if alignment in ("features", "still") else None)
     else:
         clock.skip("second_opinion", "labels from masks (or another labeler): no second labelling")
     if options.refine:

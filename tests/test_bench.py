@@ -32,7 +32,8 @@ def test_grid_is_one_factor_at_a_time():
     groups = {"views": {"views"}, "posed": {"posed"}, "depth": {"depth_noise", "flying_pixels"},
               "pose": {"pose_noise_deg", "pose_noise_m"}, "refine": {"refine"},
               "masks": {"scramble_masks"}, "no_masks": {"use_masks"}, "segmenter": {"segmenter"},
-              "budget": {"budget"}, "unposed_no_masks": {"posed", "use_masks"}}
+              "budget": {"budget"}, "unposed_no_masks": {"posed", "use_masks"},
+              "camera_moved": {"posed", "same_cameras"}, "camera_moved_no_masks": {"posed", "use_masks", "same_cameras"}}
     realistic = next(s for s in settings if s.name == "realistic")
     assert not realistic.posed and realistic.views == 3 and min(realistic.realism.levels().values()) == 1.0
     by_name = {s.name: s for s in settings}
@@ -66,7 +67,10 @@ def test_grid_is_one_factor_at_a_time():
         assert any(changed and changed <= group for group in groups.values()), (setting.name, changed)
     names = [s.name for s in settings]
     assert {"views1", "views2", "views4", "unposed", "depth1%+fly", "depth3%+fly", "pose0.5deg0.5cm",
-            "masks-scrambled", "no-masks", "builtin-segmenter", "budget-fast", "budget-best"} <= set(names)
+            "masks-scrambled", "no-masks", "builtin-segmenter", "budget-fast", "budget-best", "unposed-moved",
+            "unposed-no-masks-moved"} <= set(names)
+    assert not by_name["unposed-moved"].same_cameras and all(s.same_cameras for s in settings
+                                                             if not s.name.endswith("-moved"))
     assert ("refine" in names) != any(r.startswith("refine") for r in skipped)  # run or skipped with a reason
     assert ("realistic-xfeat" in names) != any(r.startswith("*-xfeat") for r in skipped)
     assert grid_settings(quick=True)[0] == [BenchSetting(name="default")]

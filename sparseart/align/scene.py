@@ -30,6 +30,7 @@ import numpy as np
 from sparseart.align.graph import SceneRegistration, register_scene
 from sparseart.align.ransac import AlignmentError
 from sparseart.align.states import align_states
+from sparseart.align.still import place_through_twins, still_camera
 from sparseart.geometry.clouds import transform_pointmap
 from sparseart.lift.scene_lift import LiftedScene
 from sparseart.types import Pointmap, Scene
@@ -108,6 +109,27 @@ def align_scene(scene: Scene, lifted: LiftedScene, *, seed: int = 0, matcher=Non
         diagnostics = {k: report["states"].get(k) for k in ("matches", "inliers", "rmse")}
         diagnostics["candidates"] = [int(c.support) for c in registration.candidates]
         alignment = "features" if registration.aligned else "none"
+        if alignment == "none":
+            began = time.perf_counter()
+            still = still_camera(scene.start, scene.end, lifted.pointmaps["start"], lifted.pointmaps["end"],
+                                 registration.poses["start"], registration.poses["end"])
+            seconds["align_states"] += time.perf_counter() - began
+            if still is not None:
+                alignment = "still"
+                pointmaps["end"] = [transform_pointmap(p, still.transform) for p in pointmaps["end"]]
+                report["states"] = {"method": "still camera", "trusted": True, "view": still.view,
+                                    "agreeing_pixels": round(still.share, 4), "scale": round(still.scale, 5),
+                                    "features": report["states"]}
+                warnings[:] = [w for w in warnings if not w.startswith("feature alignment of the states failed")]
+                image = scene.end[still.view].image
+                warnings.append(f"{image}: the camera did not move between the states ({still.share:.0%} of its "
+                                f"pixels agree with {scene.start[still.view].image} in depth and colour); the "
+                                f"states are aligned through it")
+        if alignment in ("features", "still"):
+            began = time.perf_counter()
+            _place_through_twins(scene, lifted, registration.poses, pointmaps, report, warnings,
+                                 still.transform if alignment == "still" else np.eye(4))
+            seconds["register_views"] += time.perf_counter() - began
         return AlignedScene(pointmaps, alignment, frame, [c.transform for c in registration.candidates], seconds,
                             warnings, diagnostics, report, registration.poses)
     # "states": per-state reconstructions, each already in one frame; only the states are aligned.
@@ -139,6 +161,27 @@ def align_scene(scene: Scene, lifted: LiftedScene, *, seed: int = 0, matcher=Non
                         "scale": float(alignment.transform.scale)}
     return AlignedScene(pointmaps, "features", frame, [c.transform for c in alignment.candidates],
                         seconds, warnings, diagnostics, report)
+
+
+def _place_through_twins(scene: Scene, lifted: LiftedScene, poses: dict[str, list], pointmaps: dict[str, list],
+                         report: dict, warnings: list[str], end_to_start: np.ndarray) -> None:
+    """Views left out of one state that their same-camera twin in the other state places
+    (:func:`~sparseart.align.still.place_through_twins`): pose, pointmap (in its state's frame),
+    report entry and warning updated in place."""
+    placed = place_through_twins(scene.start, scene.end, lifted.pointmaps["start"], lifted.pointmaps["end"],
+                                 poses["start"], poses["end"], end_to_start)
+    for (state, k), (pose, share) in placed.items():
+        poses[state][k] = pose
+        to_frame = pose if state == "start" else end_to_start @ pose
+        pointmaps[state][k] = transform_pointmap(lifted.pointmaps[state][k], to_frame)
+        frame = scene.frames(state)[k]
+        twin = scene.frames("end" if state == "start" else "start")[k]
+        entry = next(v for v in report["views"] if v["image"] == frame.image)
+        entry.update(registered=True, how="still camera", twin=twin.image, agreeing_pixels=round(share, 4))
+        entry.pop("reason", None)
+        warnings[:] = [w for w in warnings if not w.startswith(f"{frame.image}: view could not be registered")]
+        warnings.append(f"{frame.image}: placed through {twin.image}, taken from the same place ({share:.0%} of "
+                        f"the pixels agree in depth and colour)")
 
 
 def _posed(scene: Scene, lifted: LiftedScene, frame: tuple[str, str, str], report: dict) -> AlignedScene:

@@ -64,7 +64,9 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
     views 1 / 2 / 4, unposed, depth noise 1 % and 3 % (each with flying pixels on half the
     depth-edge pixels), pose noise 0.5 deg + 0.5 cm (object units), mask ids scrambled per image,
     no masks (motion split), unposed without masks (the hardest clean case for look-alike parts:
-    two factors at once), the built-in image segmenter instead of the masks, the fit's ``fast`` and
+    two factors at once), both unposed ones again with the camera moved between the states
+    (``*-moved``; every other setting keeps each view's camera in both states), the built-in
+    image segmenter instead of the masks, the fit's ``fast`` and
     ``best`` budgets (error against seconds per budget), refinement.
     Realistic renders (:mod:`sparseart.datasets.realism`, every knob at level 1, unposed) --
     ``realistic`` (3 views), ``realistic-1view``, ``realistic+refine``, ``robot-1view`` (what a
@@ -90,6 +92,11 @@ def grid_settings(seed: int = 0, quick: bool = False) -> tuple[list[BenchSetting
                 replace(base, scramble_masks=True, name="masks-scrambled"),
                 replace(base, use_masks=False, name="no-masks"),
                 replace(base, posed=False, use_masks=False, name="unposed-no-masks"),
+                # the camera moved between the states (a phone walked round the object): the
+                # unposed settings above keep each view's camera, so a still-camera alignment
+                # (sparseart.align.still) is open to them and not to these
+                replace(base, posed=False, same_cameras=False, name="unposed-moved"),
+                replace(base, posed=False, use_masks=False, same_cameras=False, name="unposed-no-masks-moved"),
                 replace(base, segmenter="builtin", name="builtin-segmenter"),
                 replace(base, budget="fast", name="budget-fast"), replace(base, budget="best", name="budget-best"),
                 realistic, replace(realistic, views=1, name="realistic-1view"),

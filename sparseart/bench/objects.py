@@ -31,7 +31,10 @@ class BenchSetting:
     i.e. metres for metric objects). refine: ask the pipeline for refinement (needs
     ``RunOptions.refine``). segmenter: ``RunOptions.segmenter`` ("auto" = the rendered masks;
     "builtin" ignores them and segments the images). matcher: ``RunOptions.matcher`` spec (None = SIFT).
-    budget: the joint fit's named budget (``FitConfig.for_budget``: fast | default | best). name: label of the setting in tables and plots.
+    budget: the joint fit's named budget (``FitConfig.for_budget``: fast | default | best).
+    same_cameras: the end state is seen from the start state's cameras (a robot's head camera, a
+    tripod); False draws fresh end cameras (a phone walked round the object between the states).
+    name: label of the setting in tables and plots.
     """
 
     views: int = 3
@@ -50,6 +53,7 @@ class BenchSetting:
     realism: Realism = CLEAN
     matcher: str | None = None
     budget: str = "default"
+    same_cameras: bool = True
     name: str = "default"
 
     def render_key(self) -> str:
@@ -57,6 +61,7 @@ class BenchSetting:
         return (f"v{self.views}_s{self.seed}_{'posed' if self.posed else 'unposed'}"
                 f"{'_scr' if self.scramble_masks else ''}_dn{self.depth_noise:g}_fp{self.flying_pixels:g}"
                 f"_pn{self.pose_noise_deg:g}-{self.pose_noise_m:g}_{self.width}x{self.height}"
+                + ("" if self.same_cameras else "_moved")
                 + ("" if self.realism.is_clean else "_r" + realism_key(self.realism)))
 
 
@@ -93,7 +98,7 @@ def render_cached(object_dir: str | Path, scene_dir: str | Path, setting: BenchS
                               scramble_masks=setting.scramble_masks, depth_noise=setting.depth_noise,
                               write_masks=True, flying_pixels=setting.flying_pixels,
                               pose_noise_deg=setting.pose_noise_deg, pose_noise_m=setting.pose_noise_m,
-                              realism=setting.realism)
+                              same_cameras=setting.same_cameras, realism=setting.realism)
     seconds = time.perf_counter() - began
     write_json_atomic(stamp_path, stamp)
     return gt, seconds
