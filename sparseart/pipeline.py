@@ -280,9 +280,10 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
                    motion_hints: list[np.ndarray] | None = None, registration: dict | None = None) -> Articulation:
     """Label the parts, finish aligning the states on the static part, fit the joints, refine.
 
-    alignment: "cameras" (already in one frame), "features" / "model" (roughly aligned: polished
-    by ICP on the labelled static part), "none" (labelled unaligned first, then registered on the
-    static part and labelled again).
+    alignment: "cameras" (already in one frame), "still" (aligned exactly through a camera that
+    did not move between the states: a known frame, no polish), "features" / "model" (roughly
+    aligned: polished by ICP on the labelled static part), "none" (labelled unaligned first, then
+    registered on the static part and labelled again).
     registration: the alignment stage's report (:func:`sparseart.align.scene.registration_report`).
     """
     seed = options.seed

@@ -14,8 +14,11 @@
   (:func:`~sparseart.align.states.align_states`).
 
 A state alignment by features is polished on the labelled static part after labelling
-(:mod:`sparseart.align.static`, alignment "features"); when it fails or is not trusted the states
-stay apart (alignment "none") and the pipeline registers them through the labeler's static part.
+(:mod:`sparseart.align.static`, alignment "features"); when it fails or is not trusted, a view
+whose camera did not move between the states aligns them exactly (:mod:`sparseart.align.still`,
+alignment "still", no polish), else the states stay apart (alignment "none") and the pipeline
+registers them through the labeler's static part. A view left out of one state is placed through
+its same-camera twin in the other once the states are aligned.
 
 ``AlignedScene.registration`` reports how each view and the states were registered (see
 :func:`registration_report`); the pipeline copies it into ``Articulation.registration``.
@@ -44,7 +47,7 @@ class AlignedScene:
 
     pointmaps: {"start": [...], "end": [...]}, one per frame of the scene; a view that could not be
         registered keeps its place with no valid point (so it adds nothing to the clouds).
-    alignment: "cameras" | "model" | "features" | "none" (module docstring).
+    alignment: "cameras" | "model" | "features" | "still" | "none" (module docstring).
     frame: (kind "world" | "camera", what defines it, units "metres" | "relative").
     motion_hints: (4, 4) start->end rigid motions in the result frame that state alignment found
         among the matches the static transform did not explain (candidate moving parts).
@@ -227,7 +230,9 @@ def registration_report(registration: SceneRegistration) -> dict:
         frame's own camera, "features", "geometry", "unregistered"), "inliers" (matches to the other
         registered views that agree with the poses), "residual" (their RMS distance, scene units),
         "scale" (estimated depth scale of the view, 1 = as given), "reason" (why a view was left out).
-    states: "method" ("features", or "none" when the states were left apart: failed or not
+    states: "method" ("features", "still camera" -- set by :func:`align_scene` when a view's camera
+        did not move: "view", "agreeing_pixels", "scale", the failed feature report under
+        "features" -- or "none" when the states were left apart: failed or not
         trusted), "trusted", "matches" / "inliers" (cross-state matches / those on the static part),
         "rmse" (of the inliers), "second_motion" (support of the strongest moving part),
         "seen_through" (share of end points where the start cameras see empty space), "reason".
