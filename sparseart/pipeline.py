@@ -293,12 +293,12 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
         with clock.stage("align.static", "unposed: end state registered to start through the static part"):
             first = labeler.label(start, end, scene, aligned=False, motion_hints=[])
             end = align_on_static(start, end, first, warnings, seed=seed)
+    # A trusted feature alignment of the states (static background and body matched) or a camera
+    # that did not move gives a known frame as cameras do: a part that moved is kept even when no
+    # static segment of the object is seen in both states (a laptop base hidden behind its open lid).
+    known_frame = True if alignment in ("features", "still") else None
     with clock.stage("label", f"part labeler: {labeler.name}"):
-        # A trusted feature alignment of the states (static background and body matched) gives a
-        # known frame as cameras do: a part that moved is kept even when no static segment of the
-        # object is seen in both states (a laptop base hidden behind its open lid).
-        labels = labeler.label(start, end, scene, aligned=True, motion_hints=hints,
-                               posed=True if alignment in ("features", "still") else None)
+        labels = labeler.label(start, end, scene, aligned=True, motion_hints=hints, posed=known_frame)
     if alignment in ("features", "model"):
         with clock.stage("align.static", f"static part: ICP polish of the {alignment} alignment"):
             end = polish_on_static(start, end, labels, warnings, seed=seed)
@@ -310,8 +310,7 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
                           config=replace(options.fit or FitConfig(), seed=seed), warnings=warnings)
     if options.second_opinion and isinstance(labeler, RuleBasedLabeler) and _labelled_by_motion(labels):
         with clock.stage("second_opinion", "no masks: labelled and fitted again with another seed"):
-            _second_opinion(start, end, scene, labels, parts, labeler, hints, options, warnings,
-                            posed=True if alignment in ("features", "still") else None)
+            _second_opinion(start, end, scene, labels, parts, labeler, hints, options, warnings, posed=known_frame)
     else:
         clock.skip("second_opinion", "labels from masks (or another labeler): no second labelling")
     if options.refine:

@@ -56,6 +56,13 @@ def turns() -> tuple[np.ndarray, ...]:
     return tuple(Rotation.from_euler("y", yaw, degrees=True).as_matrix() for yaw in range(0, 360, 45))
 
 
+def upright_starts(source: np.ndarray, target: np.ndarray) -> list[np.ndarray]:
+    """(4, 4) source -> target starts of the labelled search: each of :func:`turns` about the
+    source centroid, carrying it onto the target centroid. source (N, 3), target (M, 3). O(N + M)."""
+    source_centre, target_centre = source.mean(axis=0), target.mean(axis=0)
+    return [make_transform(turn, target_centre - turn @ source_centre) for turn in turns()]
+
+
 def tilt_deg(transform: np.ndarray) -> float:
     """Angle (deg) between a camera's y axis and its image under a (4, 4) view -> view transform."""
     return float(np.degrees(np.arccos(np.clip(transform[1, 1], -1.0, 1.0))))
@@ -107,6 +114,14 @@ class IdAgreement:
             if landed.sum() >= LABEL_MIN_ID_NEAR:
                 shares.append(np.isfinite(own.query(moved[landed], distance_upper_bound=self.distance)[0]).mean())
         return float(np.mean(shares)) if len(shares) >= LABEL_MIN_IDS else 0.0
+
+
+def id_agreement(source: np.ndarray, source_ids: np.ndarray, target: np.ndarray, target_ids: np.ndarray,
+                 size: float, seed: int) -> IdAgreement | None:
+    """:class:`IdAgreement` within 2 x ``THRESHOLD_FRACTION`` of the scene ``size`` (the distance
+    every registration judged by mask ids uses), or None when the ids are no evidence."""
+    agreement = IdAgreement(source, source_ids, target, target_ids, 2 * THRESHOLD_FRACTION * size, seed)
+    return agreement if agreement.usable else None
 
 
 def _free_space_violation(points: np.ndarray, frame: Frame, pointmap: Pointmap, size: float) -> float:
@@ -170,9 +185,7 @@ class GeometricEdges:
             edge = geometry_edge(j, i, self.frames, self.pointmaps, self.clouds, size, self.seed)
             agreement = None
             if self.ids[j] is not None and self.ids[i] is not None:
-                agreement = IdAgreement(self.clouds[j], self.ids[j], self.clouds[i], self.ids[i],
-                                        2 * THRESHOLD_FRACTION * size, self.seed)
-                agreement = agreement if agreement.usable else None
+                agreement = id_agreement(self.clouds[j], self.ids[j], self.clouds[i], self.ids[i], size, self.seed)
             vouched = None if agreement is None or edge is None else agreement(edge[0]) >= LABEL_AGREEMENT
             self._plain[j, i] = (edge, agreement, vouched)
         return self._plain[j, i]
@@ -196,10 +209,8 @@ class GeometricEdges:
         clouds = self.clouds
         if _planar(j, i, clouds, size):
             return None
-        source_centre, target_centre = clouds[j].mean(axis=0), clouds[i].mean(axis=0)
-        starts = [make_transform(turn, target_centre - turn @ source_centre) for turn in turns()]
         result = register_rigid(clouds[j], clouds[i], *_colours(j, i, self.frames, self.pointmaps), seed=self.seed,
-                                hypotheses=starts, agreement=agreement)
+                                hypotheses=upright_starts(clouds[j], clouds[i]), agreement=agreement)
         edge = _checked(result, j, i, self.frames, self.pointmaps, clouds, size, MAX_SEARCH_VIOLATION)
         if edge is None or agreement(edge[0]) < LABEL_AGREEMENT or tilt_deg(edge[0]) > MAX_SEARCH_TILT_DEG:
             return None

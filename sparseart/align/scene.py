@@ -112,26 +112,15 @@ def align_scene(scene: Scene, lifted: LiftedScene, *, seed: int = 0, matcher=Non
         diagnostics = {k: report["states"].get(k) for k in ("matches", "inliers", "rmse")}
         diagnostics["candidates"] = [int(c.support) for c in registration.candidates]
         alignment = "features" if registration.aligned else "none"
-        if alignment == "none":
+        end_to_start = np.eye(4) if registration.aligned else None
+        if end_to_start is None:
             began = time.perf_counter()
-            still = still_camera(scene.start, scene.end, lifted.pointmaps["start"], lifted.pointmaps["end"],
-                                 registration.poses["start"], registration.poses["end"])
+            end_to_start = _align_through_still_camera(scene, lifted, registration.poses, pointmaps, report, warnings)
             seconds["align_states"] += time.perf_counter() - began
-            if still is not None:
-                alignment = "still"
-                pointmaps["end"] = [transform_pointmap(p, still.transform) for p in pointmaps["end"]]
-                report["states"] = {"method": "still camera", "trusted": True, "view": still.view,
-                                    "agreeing_pixels": round(still.share, 4), "scale": round(still.scale, 5),
-                                    "features": report["states"]}
-                warnings[:] = [w for w in warnings if not w.startswith("feature alignment of the states failed")]
-                image = scene.end[still.view].image
-                warnings.append(f"{image}: the camera did not move between the states ({still.share:.0%} of its "
-                                f"pixels agree with {scene.start[still.view].image} in depth and colour); the "
-                                f"states are aligned through it")
-        if alignment in ("features", "still"):
+            alignment = "none" if end_to_start is None else "still"
+        if end_to_start is not None:
             began = time.perf_counter()
-            _place_through_twins(scene, lifted, registration.poses, pointmaps, report, warnings,
-                                 still.transform if alignment == "still" else np.eye(4))
+            _place_through_twins(scene, lifted, registration.poses, pointmaps, report, warnings, end_to_start)
             seconds["register_views"] += time.perf_counter() - began
         return AlignedScene(pointmaps, alignment, frame, [c.transform for c in registration.candidates], seconds,
                             warnings, diagnostics, report, registration.poses)
@@ -164,6 +153,27 @@ def align_scene(scene: Scene, lifted: LiftedScene, *, seed: int = 0, matcher=Non
                         "scale": float(alignment.transform.scale)}
     return AlignedScene(pointmaps, "features", frame, [c.transform for c in alignment.candidates],
                         seconds, warnings, diagnostics, report)
+
+
+def _align_through_still_camera(scene: Scene, lifted: LiftedScene, poses: dict[str, list],
+                                pointmaps: dict[str, list], report: dict, warnings: list[str]) -> np.ndarray | None:
+    """States the features left apart, aligned through a view whose camera did not move
+    (:func:`~sparseart.align.still.still_camera`): the end pointmaps moved into the start frame,
+    the report's states entry and the warnings updated in place. Returns the (4, 4) end -> start
+    transform, or None (nothing changed) when no view pair is one camera position."""
+    still = still_camera(scene.start, scene.end, lifted.pointmaps["start"], lifted.pointmaps["end"],
+                         poses["start"], poses["end"])
+    if still is None:
+        return None
+    pointmaps["end"] = [transform_pointmap(p, still.transform) for p in pointmaps["end"]]
+    report["states"] = {"method": "still camera", "trusted": True, "view": still.view,
+                        "agreeing_pixels": round(still.share, 4), "scale": round(still.scale, 5),
+                        "features": report["states"]}
+    warnings[:] = [w for w in warnings if not w.startswith("feature alignment of the states failed")]
+    warnings.append(f"{scene.end[still.view].image}: the camera did not move between the states ({still.share:.0%} "
+                    f"of its pixels agree with {scene.start[still.view].image} in depth and colour); the states "
+                    f"are aligned through it")
+    return still.transform
 
 
 def _place_through_twins(scene: Scene, lifted: LiftedScene, poses: dict[str, list], pointmaps: dict[str, list],

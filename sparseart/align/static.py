@@ -21,11 +21,10 @@ from dataclasses import replace
 
 import numpy as np
 
-from sparseart.align.geometric import LABEL_AGREEMENT, IdAgreement, turns
-from sparseart.align.features import THRESHOLD_FRACTION
+from sparseart.align.geometric import LABEL_AGREEMENT, id_agreement, upright_starts
 from sparseart.geometry.clouds import scene_size
 from sparseart.geometry.icp import register_rigid
-from sparseart.geometry.transforms import apply_transform, make_transform, rotation_angle
+from sparseart.geometry.transforms import apply_transform, rotation_angle
 from sparseart.types import LabelledCloud, PartLabels
 
 MIN_STATIC_POINTS = 20
@@ -85,17 +84,14 @@ def _vouched_by_mask_ids(start: LabelledCloud, end: LabelledCloud, pair: tuple[n
     O(N log N) for the agreement; the search adds 8 coarse ICPs on <= 2000 points."""
     if not start.segment_source or not end.segment_source:
         return registration
-    size = scene_size(start.points)
-    agreement = IdAgreement(end.points, mask_ids(end), start.points, mask_ids(start),
-                            2 * THRESHOLD_FRACTION * size, seed)
-    if not agreement.usable:
+    agreement = id_agreement(end.points, mask_ids(end), start.points, mask_ids(start), scene_size(start.points), seed)
+    if agreement is None:
         return registration
     before = agreement(registration.transform)
     if before >= LABEL_AGREEMENT:
         return registration
-    end_centre, start_centre = pair[1].mean(axis=0), pair[0].mean(axis=0)
-    starts = [make_transform(turn, start_centre - turn @ end_centre) for turn in turns()]
-    searched = register_rigid(pair[1], pair[0], seed=seed, hypotheses=starts, agreement=agreement)
+    searched = register_rigid(pair[1], pair[0], seed=seed, hypotheses=upright_starts(pair[1], pair[0]),
+                              agreement=agreement)
     after = agreement(searched.transform)
     if (searched.inlier_fraction * after < registration.inlier_fraction * before + STATE_SEARCH_MARGIN
             or searched.inlier_fraction < MIN_STATIC_AGREEMENT):

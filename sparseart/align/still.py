@@ -63,10 +63,10 @@ def still_camera(start: list[Frame], end: list[Frame], start_maps: list[Pointmap
     """
     best, best_rank = None, None
     for k in range(min(len(start), len(end))):
-        if start_poses[k] is None or end_poses[k] is None or not _one_camera(start[k], end[k]):
+        if start_poses[k] is None or end_poses[k] is None:
             continue
-        judged = pixel_agreement(start[k], end[k], start_maps[k], end_maps[k])
-        if judged is None or judged[0] < STILL_MIN_SHARE:
+        judged = _same_place(start[k], end[k], start_maps[k], end_maps[k])
+        if judged is None:
             continue
         # A state's reference view (pose = identity) carries no registration error: pairs of
         # reference views first, then the share (measured: a cabinet's best-agreeing pair had an
@@ -75,8 +75,7 @@ def still_camera(start: list[Frame], end: list[Frame], start_maps: list[Pointmap
         if best_rank is not None and rank <= best_rank:
             continue
         share, scale = judged
-        zoom = np.diag([scale, scale, scale, 1.0])
-        transform = np.asarray(start_poses[k], dtype=np.float64) @ zoom @ np.linalg.inv(end_poses[k])
+        transform = np.asarray(start_poses[k], dtype=np.float64) @ _zoom(scale) @ np.linalg.inv(end_poses[k])
         best, best_rank = StillCamera(k, share, scale, transform), rank
     return best
 
@@ -96,18 +95,32 @@ def place_through_twins(start: list[Frame], end: list[Frame], start_maps: list[P
     for k in range(min(len(start), len(end))):
         missing = "start" if start_poses[k] is None else "end" if end_poses[k] is None else None
         twin_pose = end_poses[k] if missing == "start" else start_poses[k]
-        if missing is None or twin_pose is None or not _one_camera(start[k], end[k]):
+        if missing is None or twin_pose is None:
             continue
-        judged = pixel_agreement(start[k], end[k], start_maps[k], end_maps[k])
-        if judged is None or judged[0] < STILL_MIN_SHARE:
+        judged = _same_place(start[k], end[k], start_maps[k], end_maps[k])
+        if judged is None:
             continue
         share, scale = judged   # start depth = scale x end depth
         if missing == "start":
-            pose = end_to_start @ np.asarray(twin_pose, dtype=np.float64) @ np.diag([1 / scale] * 3 + [1.0])
+            pose = end_to_start @ np.asarray(twin_pose, dtype=np.float64) @ _zoom(1.0 / scale)
         else:
-            pose = start_to_end @ np.asarray(twin_pose, dtype=np.float64) @ np.diag([scale] * 3 + [1.0])
+            pose = start_to_end @ np.asarray(twin_pose, dtype=np.float64) @ _zoom(scale)
         placed[(missing, k)] = (pose, share)
     return placed
+
+
+def _same_place(start: Frame, end: Frame, start_map: Pointmap, end_map: Pointmap) -> tuple[float, float] | None:
+    """(share, scale) of :func:`pixel_agreement` for two images of one camera (same size and
+    intrinsics) taken from one place (share >= ``STILL_MIN_SHARE``); None otherwise. O(H W log(H W))."""
+    if not _one_camera(start, end):
+        return None
+    judged = pixel_agreement(start, end, start_map, end_map)
+    return judged if judged is not None and judged[0] >= STILL_MIN_SHARE else None
+
+
+def _zoom(scale: float) -> np.ndarray:
+    """(4, 4) float64 scaling about the camera centre: a view's depth multiplied by ``scale``."""
+    return np.diag([scale, scale, scale, 1.0])
 
 
 def pixel_agreement(start: Frame, end: Frame, start_map: Pointmap, end_map: Pointmap) -> tuple[float, float] | None:
@@ -121,14 +134,15 @@ def pixel_agreement(start: Frame, end: Frame, start_map: Pointmap, end_map: Poin
     depths = [_depth(f, m) for f, m in ((start, start_map), (end, end_map))]
     if any(d is None for d in depths) or depths[0].shape != depths[1].shape or start.rgb.shape != end.rgb.shape:
         return None
-    near, far = depths
-    valid = (near > 0) & (far > 0) & np.isfinite(near) & np.isfinite(far)
+    start_depth, end_depth = depths
+    valid = (start_depth > 0) & (end_depth > 0) & np.isfinite(start_depth) & np.isfinite(end_depth)
     if int(valid.sum()) < STILL_MIN_PIXELS:
         return None
-    scale = float(np.median(near[valid] / far[valid]))
-    depth_agrees = np.abs(far[valid] * scale - near[valid]) <= STILL_DEPTH_TOLERANCE * near[valid]
+    near, far = start_depth[valid], end_depth[valid]
+    scale = float(np.median(near / far))
     if image_shift(start.rgb, end.rgb) > STILL_MAX_SHIFT_PX:
         return 0.0, scale
+    depth_agrees = np.abs(far * scale - near) <= STILL_DEPTH_TOLERANCE * near
     colour = np.abs(start.rgb.astype(np.float64) - end.rgb.astype(np.float64)).mean(axis=2)[valid] / 255.0
     return float(np.mean(depth_agrees & (colour < STILL_COLOUR_TOLERANCE))), scale
 
