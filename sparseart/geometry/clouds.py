@@ -43,10 +43,20 @@ def pca_normals(points: np.ndarray, positions: np.ndarray, neighbours: int,
     """(S, 3) unoriented unit surface normals at ``positions`` (S, 3): the smallest principal axis
     of the ``neighbours`` nearest of ``points`` (N, 3) around each. tree: a prebuilt cKDTree of
     ``points``. O(S k log N) (+ O(N log N) without ``tree``)."""
+    return surface_normals(points, positions, neighbours, tree)[0]
+
+
+def surface_normals(points: np.ndarray, positions: np.ndarray, neighbours: int,
+                    tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(S, 3) unoriented unit normals at ``positions`` (S, 3) as :func:`pca_normals`, and (S,)
+    their surface variation: the smallest eigenvalue of the neighbourhood's scatter over the sum
+    of all three (0 on a plane, 1/3 for isotropic noise; unit-free). O(S k log N)."""
     tree = tree if tree is not None else cKDTree(points)
     _, index = tree.query(positions, k=neighbours)
+    index = np.asarray(index).reshape(len(positions), -1)
     local = points[index] - points[index].mean(axis=1, keepdims=True)
-    return np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))[1][:, :, 0]
+    values, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
+    return vectors[:, :, 0], values[:, 0] / np.maximum(values.sum(axis=1), 1e-300)
 
 
 SLAB_THICKNESS_SHARE = 0.3  # a slab (door, lid): third principal extent at most this share of the second
