@@ -10,7 +10,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from conftest import PARTNET_DIR, requires_partnet
-from sparseart.labelers.rules import _replaced_surfaces
+from sparseart.geometry.clouds import normals_with_variation
+from sparseart.labelers.rules import REPLACED_NEIGHBOURS, _replaced_surfaces
 
 
 def _grid(n: int, spacing: float) -> np.ndarray:
@@ -20,9 +21,11 @@ def _grid(n: int, spacing: float) -> np.ndarray:
 
 
 def _test(own: np.ndarray, other: np.ndarray) -> np.ndarray:
-    tree = cKDTree(other)
-    _, nearest = tree.query(own)
-    return _replaced_surfaces(own, own, other, nearest, tree)
+    """The replaced-surface test of every point of ``own`` against its nearest point of ``other``."""
+    _, nearest = cKDTree(other).query(own)
+    own_normals, own_variation = normals_with_variation(own, REPLACED_NEIGHBOURS)
+    other_normals, other_variation = normals_with_variation(other, REPLACED_NEIGHBOURS)
+    return _replaced_surfaces(own_normals, own_variation, other_normals[nearest], other_variation[nearest])
 
 
 def test_a_wall_where_a_front_was_is_a_replaced_surface_and_the_same_plane_is_not():

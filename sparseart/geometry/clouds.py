@@ -43,19 +43,24 @@ def pca_normals(points: np.ndarray, positions: np.ndarray, neighbours: int,
     """(S, 3) unoriented unit surface normals at ``positions`` (S, 3): the smallest principal axis
     of the ``neighbours`` nearest of ``points`` (N, 3) around each. tree: a prebuilt cKDTree of
     ``points``. O(S k log N) (+ O(N log N) without ``tree``)."""
-    return surface_normals(points, positions, neighbours, tree)[0]
-
-
-def surface_normals(points: np.ndarray, positions: np.ndarray, neighbours: int,
-                    tree: cKDTree | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(S, 3) unoriented unit normals at ``positions`` (S, 3) as :func:`pca_normals`, and (S,)
-    their surface variation: the smallest eigenvalue of the neighbourhood's scatter over the sum
-    of all three (0 on a plane, 1/3 for isotropic noise; unit-free). O(S k log N)."""
     tree = tree if tree is not None else cKDTree(points)
     _, index = tree.query(positions, k=neighbours)
-    index = np.asarray(index).reshape(len(positions), -1)
     local = points[index] - points[index].mean(axis=1, keepdims=True)
-    values, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
+    return np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))[1][:, :, 0]
+
+
+def normals_with_variation(points: np.ndarray, neighbours: int) -> tuple[np.ndarray, np.ndarray]:
+    """(N, 3) unoriented unit normals of every point of ``points`` (N, 3) from the scatter of its
+    ``neighbours`` nearest points (open3d's covariance estimate, C++), and (N,) the surface
+    variation: the scatter's smallest eigenvalue over the sum of all three (0 on a plane, 1/3 for
+    isotropic noise; unit-free). Each point's estimate depends on its own neighbours only, so the
+    result does not depend on open3d's threads. O(N k log N)."""
+    from .o3d import open3d
+
+    o3d = open3d()
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
+    cloud.estimate_covariances(o3d.geometry.KDTreeSearchParamKNN(int(min(neighbours, len(points)))))
+    values, vectors = np.linalg.eigh(np.asarray(cloud.covariances))
     return vectors[:, :, 0], values[:, 0] / np.maximum(values.sum(axis=1), 1e-300)
 
 

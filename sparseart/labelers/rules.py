@@ -38,7 +38,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sparseart.geometry.clouds import median_spacing, radius_components, surface_normals
+from sparseart.geometry.clouds import median_spacing, normals_with_variation, radius_components
 from sparseart.geometry.sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 from .consistency import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
@@ -104,16 +104,27 @@ class RuleBasedLabeler:
         moved, a second pass splits the points again with replaced surfaces counted as moved
         (:func:`_replaced_surfaces`) and is kept when it finds a part.
 
-        Why only then: "nothing moved" is the strongest claim the labeler makes, and the nearest-
-        point test behind it is blind to a part whose old place the other state fills with a
-        different surface -- a drawer pulled towards a robot's head camera leaves its front's
-        place to its own side walls, its interior and the arm that pulled it, all within the
-        motion radius. Measured on the robot-shaped renders (16 objects, seeds 0-3, one view, no
-        masks): the second split on every scene gave 46 -> 46 and 41 -> 45 of 84 joints, but it
-        also moved labels of scenes that were right (a clean twin-drawer desk lost 2 of 4
-        drawers: drawer boxes passing the carcass's opening edges). Limited to the scenes with
-        no part it changes nothing else (benchmarks/results/realistic/replaced_surfaces/).
-        The cost of the pass again, in those scenes only."""
+        scene: the scene whose frames the clouds came from; its depth images and intrinsics give
+            the free-space evidence (none without it).
+        motion_hints: (4, 4) start->end rigid motions (scene frame) that another stage found, e.g.
+            the feature alignment's candidate moving parts; each is tried as one more hypothesis
+            for every pair of segment groups.
+        posed: the clouds are in a known world frame (cameras given); None = ``scene.posed`` when a
+            scene is given and ``aligned``. A part that moved is then kept even when no static
+            segment is seen in both states.
+
+        Why the second pass only then: "nothing moved" is the strongest claim the labeler makes,
+        and the nearest-point test behind it is blind to a part whose old place the other state
+        fills with a different surface -- a drawer pulled towards a robot's head camera leaves its
+        front's place to its own side walls, its interior and the arm that pulled it, all within
+        the motion radius. Measured on the robot-shaped renders (16 objects, seeds 0-3, one view,
+        no masks): the replaced-surface split on every scene gave 46 -> 46 and 41 -> 45 of 84
+        joints, with as many new misses as new hits, and a clean twin-drawer desk lost 2 of 4
+        drawers (drawer boxes passing the carcass's opening edges); only after "no part moved" it
+        gave 46 -> 49 and 41 -> 43 with no joint lost, and every other setting unchanged
+        (benchmarks/results/realistic/replaced_surfaces/). Costs one pass more (~0.9 s on a
+        robot view), in those scenes only.
+        """
         labels = self._label_pass(start, end, scene, aligned, motion_hints, posed, replaced=False)
         has_masks = bool(np.any(start.segment >= 0) and np.any(end.segment >= 0))
         if has_masks or any(p.role == "movable" for p in labels.parts):
@@ -128,20 +139,11 @@ class RuleBasedLabeler:
 
     def _label_pass(self, start: LabelledCloud, end: LabelledCloud, scene: Scene | None, aligned: bool,
                     motion_hints: list[np.ndarray] | None, posed: bool | None, replaced: bool) -> PartLabels:
-        """One labelling; ``replaced``: the split without masks also counts replaced surfaces as
-        moved (:func:`_replaced_surfaces`). About O(N log N) for the downsampling and KD-trees, plus
-        O(G_s G_e (R_c + S (log M + V))) for the pair search (:mod:`.correspondence`) with G groups
-        per state, a coarse registration R_c, S samples, V views.
-
-        scene: the scene whose frames the clouds came from; its depth images and intrinsics give
-            the free-space evidence (none without it).
-        motion_hints: (4, 4) start->end rigid motions (scene frame) that another stage found, e.g.
-            the feature alignment's candidate moving parts; each is tried as one more hypothesis
-            for every pair of segment groups.
-        posed: the clouds are in a known world frame (cameras given); None = ``scene.posed`` when a
-            scene is given and ``aligned``. A part that moved is then kept even when no static
-            segment is seen in both states.
-        """
+        """One labelling (arguments as :meth:`label`); ``replaced``: the split without masks also
+        counts replaced surfaces as moved (:func:`_replaced_surfaces`). About O(N log N) for the
+        downsampling and KD-trees, plus O(G_s G_e (R_c + S (log M + V))) for the pair search
+        (:mod:`.correspondence`) with G groups per state, a coarse registration R_c, S samples,
+        V views."""
         if len(start) < 10 or len(end) < 10:
             raise ValueError("too few valid points to label parts (need at least 10 per state)")
         config = self.config
@@ -280,13 +282,18 @@ def _motion_split(start: LabelledCloud, end: LabelledCloud, config: RuleLabelerC
     radius = config.motion_radius_spacings * full_spacing
     views = ((state_views(end, scene, radius), state_views(start, scene, radius)) if scene is not None
              else (StateViews([], radius), StateViews([], radius)))
+    trees = (cKDTree(full_start.points), cKDTree(full_end.points))
+    surfaces = ([normals_with_variation(full.points, REPLACED_NEIGHBOURS) for full in (full_start, full_end)]
+                if replaced else None)
     result = []
-    for cloud, own, other, other_views in ((start, full_start, full_end, views[0]), (end, full_end, full_start, views[1])):
-        other_tree = cKDTree(other.points)
-        distance, nearest = other_tree.query(cloud.points, k=1, distance_upper_bound=radius)
-        if replaced:
+    for side, (cloud, other_views) in enumerate(((start, views[0]), (end, views[1]))):
+        distance, nearest = trees[1 - side].query(cloud.points, k=1, distance_upper_bound=radius)
+        if surfaces is not None:
             near = np.flatnonzero(distance <= radius)
-            swapped = _replaced_surfaces(cloud.points[near], own.points, other.points, nearest[near], other_tree)
+            own = trees[side].query(cloud.points[near], k=1)[1]
+            (own_normals, own_variation), (other_normals, other_variation) = surfaces[side], surfaces[1 - side]
+            swapped = _replaced_surfaces(own_normals[own], own_variation[own], other_normals[nearest[near]],
+                                         other_variation[nearest[near]])
             distance[near[swapped]] = np.inf
         segments = np.zeros(len(cloud), dtype=np.int64)
         far = np.flatnonzero(distance > radius)
@@ -306,13 +313,13 @@ REPLACED_MIN_DEG = 45.0         # a near point's surface and the other state's t
 REPLACED_MAX_VARIATION = 0.15   # ... when both are planar enough for their normals to mean something
 
 
-def _replaced_surfaces(points: np.ndarray, own: np.ndarray, other: np.ndarray, nearest: np.ndarray,
-                       other_tree: cKDTree) -> np.ndarray:
-    """(P,) bool: which of ``points`` (P, 3), each within the motion radius of the other state's
-    point ``other[nearest]``, lie on a surface the other state replaced by a differently facing
-    one: the two surface normals (PCA of ``REPLACED_NEIGHBOURS`` points of each state's full
-    cloud, ``own`` / ``other`` (N, 3)) differ by more than ``REPLACED_MIN_DEG`` and both
-    neighbourhoods are planar (surface variation <= ``REPLACED_MAX_VARIATION``).
+def _replaced_surfaces(own_normals: np.ndarray, own_variation: np.ndarray, other_normals: np.ndarray,
+                       other_variation: np.ndarray) -> np.ndarray:
+    """(P,) bool: which of P near points (each within the motion radius of the other state's
+    cloud) lie on a surface the other state replaced by a differently facing one: its normal and
+    the other state's normal at its nearest point ((P, 3) each, PCA of ``REPLACED_NEIGHBOURS``
+    points of each state's full cloud) differ by more than ``REPLACED_MIN_DEG`` and both
+    neighbourhoods are planar (surface variations (P,) <= ``REPLACED_MAX_VARIATION``).
 
     Why: a drawer pulled out towards the camera leaves its front's place to its own side walls and
     interior (and the arm), so the front is "near" the other state everywhere and was called
@@ -320,12 +327,7 @@ def _replaced_surfaces(points: np.ndarray, own: np.ndarray, other: np.ndarray, n
     (nightstand, the drawer's start front): normal gaps > 45 deg on 82 % of it against 3 % of the
     static carcass and background; the background's wrongly gapped points are noise-dominated
     (surface variation median 0.20 against 0.10 on the drawer), which the planarity test drops.
-    O(P k log N) for k = ``REPLACED_NEIGHBOURS``."""
-    if len(points) == 0:
-        return np.zeros(0, dtype=bool)
-    own_normals, own_variation = surface_normals(own, points, min(REPLACED_NEIGHBOURS, len(own)))
-    other_normals, other_variation = surface_normals(other, other[nearest], min(REPLACED_NEIGHBOURS, len(other)),
-                                                     tree=other_tree)
+    O(P)."""
     facing = np.abs(np.einsum("ij,ij->i", own_normals, other_normals))
     planar = (own_variation <= REPLACED_MAX_VARIATION) & (other_variation <= REPLACED_MAX_VARIATION)
     return (facing < np.cos(np.radians(REPLACED_MIN_DEG))) & planar
