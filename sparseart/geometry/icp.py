@@ -130,10 +130,11 @@ def tukey_icp(source_cloud, target_cloud, init: np.ndarray, distances: tuple[flo
 
 def _score(source: np.ndarray, target: np.ndarray, target_tree: cKDTree, transform: np.ndarray,
            inlier_distance: float) -> tuple[float, float]:
-    """(inlier_fraction, rmse) of a transform; O((N + M) log(N + M))."""
+    """(inlier_fraction, rmse) of a transform; O((N + M) log(N + M)). Only inlier distances are
+    read, so the searches stop at ``inlier_distance``."""
     moved = apply_transform(transform, source)
-    forward, _ = target_tree.query(moved)
-    backward, _ = cKDTree(moved).query(target)
+    forward, _ = target_tree.query(moved, distance_upper_bound=inlier_distance)
+    backward, _ = cKDTree(moved).query(target, distance_upper_bound=inlier_distance)
     inlier = forward < inlier_distance
     fraction = 0.5 * (inlier.mean() + (backward < inlier_distance).mean())
     rmse = float(np.sqrt(np.mean(forward[inlier] ** 2))) if inlier.any() else float("inf")
@@ -239,9 +240,11 @@ def register_rigid(
         transform = _colored_polish(source_n, target_n, source_colors, target_colors, transform,
                                     inlier_distance, resolution, target_tree, source_sub, target_sub, rng,
                                     max_points, chosen["inlier_fraction"])
-    # Full-resolution correspondences.
+    # Full-resolution correspondences: only inliers are kept, so the search stops at the inlier
+    # distance (without the bound, a far hypothesis walks the whole tree for every point: 39 % of
+    # the time of the geometric view fallback on a realistic toaster; same rows either way).
     moved_full = apply_transform(transform, source_n)
-    full_distance, full_index = cKDTree(target_n).query(moved_full)
+    full_distance, full_index = cKDTree(target_n).query(moved_full, distance_upper_bound=inlier_distance)
     inlier_full = full_distance < inlier_distance
     fraction, rmse = _score(source_sub, target_sub, target_tree, transform, inlier_distance)
     correspondences = np.stack([np.flatnonzero(inlier_full), full_index[inlier_full]], axis=1).astype(np.int64)
