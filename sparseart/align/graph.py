@@ -49,6 +49,7 @@ from sparseart.align.ransac import DEGENERATE_FRACTION, AlignmentError, Similari
 from sparseart.geometry.clouds import scene_size, spread, valid_points
 from sparseart.geometry.icp import icp_polish
 from sparseart.geometry.transforms import apply_transform, rotation_angle
+from sparseart.parallel import in_parallel
 from sparseart.types import Frame, Pointmap
 
 STATES = ("start", "end")
@@ -872,7 +873,9 @@ def _place_by_geometry(edge_of, frames, poses, registered, info, n_start, sizes:
         if v in registered:
             continue
         same = [u for u in sorted(registered) if (u < n_start) == (v < n_start)]
-        found = [(u, edge) for u in same if (edge := edge_of(v, u, sizes[v < n_start])) is not None]
+        # the edges to every registered view side by side (each a pure function of the two views)
+        edges = in_parallel(lambda u: edge_of(v, u, sizes[v < n_start]), same)
+        found = [(u, edge) for u, edge in zip(same, edges) if edge is not None]
         if not found:
             continue
         u, (transform, overlap, _) = max(found, key=lambda item: item[1][2])

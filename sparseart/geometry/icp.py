@@ -11,7 +11,9 @@ rarely exceed 180 deg and symmetric parts such as drawer fronts create flip ambi
 Reproducible: subsamples come from ``numpy.random.default_rng(seed)``, open3d's RANSAC from its
 seeded generator, and every open3d registration call runs on one thread
 (:func:`sparseart.geometry.o3d.serial`), so its parallel sums cannot change the last bits from run
-to run: the same input gives the same transform, bit for bit.
+to run: the same input gives the same transform, bit for bit. The hypotheses are refined side
+by side in threads (:func:`sparseart.parallel.in_parallel`): each refinement is a pure function
+of its inputs, so the results do not depend on the schedule.
 """
 from __future__ import annotations
 
@@ -25,6 +27,7 @@ from sparseart.geometry.clouds import median_spacing
 from sparseart.geometry.o3d import open3d, serial
 from sparseart.geometry.sampling import random_subset
 from sparseart.geometry.transforms import apply_transform, make_transform, rotation_angle
+from sparseart.parallel import in_parallel
 
 
 @dataclass
@@ -216,12 +219,13 @@ def register_rigid(
     if len(starts) > 1:  # screen the hypotheses cheaply on a coarser subsample, refine the best 2
         coarse_pick = random_subset(source_sub.shape[0], max(max_points // 3, 50), rng)
         coarse_cloud = _o3d_cloud(source_sub[coarse_pick])
-        screened = [scored(_refine(name, start, coarse_cloud, target_cloud, schedule[:2], source_sub[coarse_pick],
-                                   target_sub, target_tree, schedule[1])) for name, start in starts]
+        screened = in_parallel(lambda item: scored(_refine(item[0], item[1], coarse_cloud, target_cloud, schedule[:2],
+                                                           source_sub[coarse_pick], target_sub, target_tree,
+                                                           schedule[1])), starts)
         screened.sort(key=lambda r: (-round(r["score"], 2), r["angle_deg"]))
         starts = [(r["name"], r["transform"]) for r in screened[:2]]
-    results = [scored(_refine(name, start, source_cloud, target_cloud, schedule[1:], source_sub, target_sub,
-                              target_tree, inlier_distance)) for name, start in starts]
+    results = in_parallel(lambda item: scored(_refine(item[0], item[1], source_cloud, target_cloud, schedule[1:],
+                                                      source_sub, target_sub, target_tree, inlier_distance)), starts)
     if init is None and use_fpfh and max(r["inlier_fraction"] for r in results) < fpfh_below \
             and min(len(source_sub), len(target_sub)) >= 30:
         # The cheap hypotheses did not explain the data: try features (about 0.2-1 s).

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import importlib
 import sys
+import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from functools import lru_cache
@@ -72,23 +73,38 @@ def _real_plotly() -> ModuleType:
     return module
 
 
+_SERIAL_LOCK = threading.Lock()
+_serial_holders = 0          # threads inside serial() now
+_serial_previous = 0         # the thread limit before the first of them entered
+
+
 @contextmanager
 def serial() -> Iterator[ModuleType]:
     """open3d limited to one thread inside the block (yields the module); the previous limit is
-    restored on exit (nesting is fine).
+    restored when the last block open in any thread closes (nesting and threads are fine).
 
     open3d parallelises with TBB, whose reductions (the 6x6 normal equations of every ICP step,
     RANSAC's best-model bookkeeping, fitness sums) add per-thread partial sums in an order that
     depends on the thread schedule: the same input then gives transforms that differ in the last
     bits (measured ~1e-16 per ICP call, enough to flip later discrete choices and the final joints).
     One thread makes every open3d call a pure function of its input. Registration works on at most
-    a few thousand points, where the measured cost of one thread is within noise. The limit is
-    process-wide, so other threads using open3d meanwhile also run on one thread.
+    a few thousand points, where the measured cost of one thread is within noise; independent
+    registrations run side by side in Python threads instead (:func:`sparseart.parallel.
+    in_parallel`). The limit is process-wide and counted over threads, so a thread leaving its
+    block cannot lift it while another thread is still inside one; other threads using open3d
+    meanwhile also run on one thread.
     """
+    global _serial_holders, _serial_previous
     o3d = open3d()
-    previous = o3d.utility.get_max_threads()
-    o3d.utility.set_max_threads(1)
+    with _SERIAL_LOCK:
+        if _serial_holders == 0:
+            _serial_previous = o3d.utility.get_max_threads()
+            o3d.utility.set_max_threads(1)
+        _serial_holders += 1
     try:
         yield o3d
     finally:
-        o3d.utility.set_max_threads(previous)
+        with _SERIAL_LOCK:
+            _serial_holders -= 1
+            if _serial_holders == 0:
+                o3d.utility.set_max_threads(_serial_previous)

@@ -37,6 +37,7 @@ from scipy.spatial.transform import Rotation
 from ..geometry.clouds import pca_normals
 from ..joints.config import FitConfig
 from ..joints.select import FAR_PIVOT_MAX_TURN_DEG
+from ..parallel import in_parallel
 from ..types import LabelledCloud
 from .consistency import StateViews, visible_fraction
 
@@ -282,11 +283,11 @@ def set_score(start: LabelledCloud, end: LabelledCloud, source_idx: np.ndarray, 
     """
     source, target = start.points[source_idx], end.points[target_idx]
     moved = apply(transform, source)
-    distance, nearest = target_tree.query(moved, k=1)
+    distance, nearest = target_tree.query(moved, k=1, distance_upper_bound=radius)
     hits = distance < radius
     forward = visible_fraction(end_views.classify(moved), hits) if end_views else float(hits.mean())
     back = apply(np.linalg.inv(transform), target)
-    back_hits = source_tree.query(back, k=1)[0] < radius
+    back_hits = source_tree.query(back, k=1, distance_upper_bound=radius)[0] < radius
     backward = (visible_fraction(start_views.classify(back), back_hits) if start_views
                 else float(back_hits.mean()))
     if hits.any():
@@ -311,7 +312,7 @@ def register_sets(ctx: PairContext, start_idx: np.ndarray, end_idx: np.ndarray,
     sub.end_samples = [_sample(group_e.indices, ctx.samples, rng)]
     sub.start_trees = [cKDTree(ctx.start.points[group_s.indices])]
     sub.end_trees = [cKDTree(ctx.end.points[group_e.indices])]
-    return _register_pair(sub, 0, 0, 0.0, rng)
+    return _register_pair(sub, 0, 0, 0.0, _coarse_samples(sub, 0, 0, rng))
 
 
 def blocked_step_share(transform: np.ndarray, direction: float, points: np.ndarray, radius: float,
@@ -399,8 +400,9 @@ def slide_sine(ctx: PairContext, i: int, j: int, transform: np.ndarray) -> float
     the surface seen in both states faces. O(S log N)."""
     source = ctx.start.points[ctx.start_samples[i]]
     target = ctx.end.points[ctx.end_samples[j]]
-    hits_s = ctx.end_trees[j].query(apply(transform, source), k=1)[0] < ctx.radius
-    hits_e = ctx.start_trees[i].query(apply(np.linalg.inv(transform), target), k=1)[0] < ctx.radius
+    hits_s = ctx.end_trees[j].query(apply(transform, source), k=1, distance_upper_bound=ctx.radius)[0] < ctx.radius
+    hits_e = ctx.start_trees[i].query(apply(np.linalg.inv(transform), target), k=1,
+                                      distance_upper_bound=ctx.radius)[0] < ctx.radius
     return slide_sine_points(ctx, transform, source, target, source[hits_s], target[hits_e])
 
 
@@ -616,8 +618,10 @@ def score_pairs(ctx: PairContext, match_min_score: float, motion_hints: list[np.
     if settled_start:
         ctx.set_static(np.concatenate([ctx.start_groups[i].indices for i in sorted(settled_start)]))
     rng = np.random.default_rng(ctx.seed + 3)
-    registrations = {key: _register_pair(ctx, key[0], key[1], match_min_score, rng) for key in sorted(identity)
-                     if key[0] not in settled_start and key[1] not in settled_end}
+    keys = [key for key in sorted(identity) if key[0] not in settled_start and key[1] not in settled_end]
+    draws = [_coarse_samples(ctx, i, j, rng) for i, j in keys]     # drawn in key order, then registered
+    registrations = dict(zip(keys, in_parallel(                     # side by side (pure given the draws)
+        lambda item: _register_pair(ctx, item[0][0], item[0][1], match_min_score, item[1]), list(zip(keys, draws)))))
     # Pairs the cheap hypotheses explain poorly get the global registration too: the best
     # ``GLOBAL_PER_GROUP`` such pairs of every start group (the rest are not its partner anyway).
     for i in sorted({key[0] for key in registrations}):
@@ -661,9 +665,22 @@ def score_pairs(ctx: PairContext, match_min_score: float, motion_hints: list[np.
     return candidates
 
 
+def _coarse_samples(ctx: PairContext, i: int, j: int,
+                    rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray] | None:
+    """The coarse points of a pair (``COARSE_POINTS`` random sample indices of start group i and
+    of end group j; None when either has fewer than 3), drawn from ``rng``."""
+    start_idx, end_idx = ctx.start_samples[i], ctx.end_samples[j]
+    if len(start_idx) < 3 or len(end_idx) < 3:
+        return None
+    coarse_s = start_idx[np.sort(rng.choice(len(start_idx), min(COARSE_POINTS, len(start_idx)), replace=False))]
+    coarse_e = end_idx[np.sort(rng.choice(len(end_idx), min(COARSE_POINTS, len(end_idx)), replace=False))]
+    return coarse_s, coarse_e
+
+
 def _register_pair(ctx: PairContext, i: int, j: int, match_min_score: float,
-                   rng: np.random.Generator) -> tuple[float, np.ndarray | None]:
-    """Coarse-to-fine registration of start group i onto end group j.
+                   coarse_samples: tuple[np.ndarray, np.ndarray] | None) -> tuple[float, np.ndarray | None]:
+    """Coarse-to-fine registration of start group i onto end group j, from its coarse points
+    (:func:`_coarse_samples`; None: too few points, no registration).
 
     Coarse: every cheap hypothesis (centroid shift, principal-frame turns, the smaller group's
     box slid against each face of the larger one -- a closed drawer shows only its front) is
@@ -672,12 +689,10 @@ def _register_pair(ctx: PairContext, i: int, j: int, match_min_score: float,
     x ``match_min_score`` is dropped there; otherwise the best is refined on the full samples.
     Returns (score on the full samples, motion). O(H S_c log S_c + I S log S).
     """
-    start_idx, end_idx = ctx.start_samples[i], ctx.end_samples[j]
-    if len(start_idx) < 3 or len(end_idx) < 3:
+    if coarse_samples is None:
         return -1.0, None
-    coarse_s = start_idx[np.sort(rng.choice(len(start_idx), min(COARSE_POINTS, len(start_idx)), replace=False))]
-    coarse_e = end_idx[np.sort(rng.choice(len(end_idx), min(COARSE_POINTS, len(end_idx)), replace=False))]
-    coarse_samples = (coarse_s, coarse_e)
+    start_idx, end_idx = ctx.start_samples[i], ctx.end_samples[j]
+    coarse_s, coarse_e = coarse_samples
     source, target = ctx.start.points[coarse_s], ctx.end.points[coarse_e]
     hypotheses = _hypotheses(source, target) + _box_slides(source, target, ctx.frame)
     # Screen by the share of near points both ways (no views, a loose radius: a hypothesis a few

@@ -378,8 +378,8 @@ def _merge_across_frames(cloud: LabelledCloud, segments: np.ndarray, radius: flo
         for b in kept[i + 1:]:
             if frame_of[a] == frame_of[b] or find(a) == find(b):
                 continue
-            overlap_ab = np.mean(trees[b].query(cloud.points[samples[a]], k=1)[0] < radius)
-            overlap_ba = np.mean(trees[a].query(cloud.points[samples[b]], k=1)[0] < radius)
+            overlap_ab = _overlap(cloud.points[samples[a]], trees[b], radius)
+            overlap_ba = _overlap(cloud.points[samples[b]], trees[a], radius)
             if max(overlap_ab, overlap_ba) >= config.merge_overlap:
                 union(a, b)
     groups: dict[int, list[int]] = {}
@@ -401,7 +401,9 @@ def _group_sample(group: Group, limit: int, rng: np.random.Generator) -> np.ndar
 
 
 def _overlap(moved: np.ndarray, target_tree: cKDTree, radius: float) -> float:
-    return float(np.mean(target_tree.query(moved, k=1)[0] < radius))
+    """Share of ``moved`` (N, 3) within ``radius`` of the tree's points; the search stops at the
+    radius (only hits count). O(N log M)."""
+    return float(np.mean(target_tree.query(moved, k=1, distance_upper_bound=radius)[0] < radius))
 
 
 def _apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
