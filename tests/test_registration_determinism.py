@@ -3,11 +3,15 @@ reductions change ICP results in the last bits from call to call unless open3d r
 (sparseart.geometry.o3d.serial)."""
 from __future__ import annotations
 
+import threading
+
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from sparseart.geometry.icp import _o3d_cloud, icp_polish, register_rigid, tukey_icp
 from sparseart.geometry.o3d import open3d, serial
+from sparseart.parallel import in_parallel
 
 
 def _pair(seed: int = 1, n: int = 2000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -54,3 +58,57 @@ def test_register_rigid_with_features_and_colours_is_reproducible():
     assert len({r.transform.tobytes() for r in runs}) == 1
     assert len({r.correspondences.tobytes() for r in runs}) == 1
     assert np.abs(runs[0].transform - truth).max() < 0.02
+
+
+def test_register_rigid_gives_the_same_bits_with_threads_as_without(monkeypatch):
+    """The hypotheses refined side by side (sparseart.parallel) give what a sequential run gives."""
+    import sparseart.parallel as parallel
+
+    source, target, _ = _pair(seed=4, n=1500)
+    colours = np.clip(0.5 + 0.3 * source / np.abs(source).max(axis=0), 0.0, 1.0)
+    runs = {}
+    for threads in (1, 4):
+        monkeypatch.setattr(parallel, "PARALLEL_THREADS", threads)
+        result = register_rigid(source, target, colours, colours, fpfh_below=1.01, seed=5)
+        runs[threads] = (result.transform.tobytes(), result.correspondences.tobytes(),
+                         [(h["name"], h["inlier_fraction"], h["rmse"]) for h in result.diagnostics["hypotheses"]])
+    assert runs[1] == runs[4]
+
+
+def test_serial_holds_one_thread_while_any_thread_is_inside():
+    """Threads entering and leaving serial() in any order: open3d stays on one thread until the
+    last one leaves, then gets its limit back (a thread leaving first must not lift it)."""
+    o3d = open3d()
+    before = o3d.utility.get_max_threads()
+    inside, leave_first, seen = threading.Barrier(2), threading.Event(), []
+
+    def first():
+        with serial():
+            inside.wait()
+        leave_first.set()
+
+    def second():
+        with serial():
+            inside.wait()
+            leave_first.wait()
+            seen.append(o3d.utility.get_max_threads())
+
+    threads = [threading.Thread(target=first), threading.Thread(target=second)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert seen == [1]
+    assert o3d.utility.get_max_threads() == before
+
+
+def test_in_parallel_keeps_the_order_and_raises_the_first_error():
+    assert in_parallel(lambda x: x * x, range(20)) == [x * x for x in range(20)]
+
+    def boom(x):
+        if x == 3:
+            raise ValueError("three")
+        return x
+
+    with pytest.raises(ValueError, match="three"):
+        in_parallel(boom, range(8))

@@ -167,6 +167,28 @@ def test_labeler_is_deterministic_on_a_multi_part_scene(unposed_fridge):
     assert len(json.loads(runs[0])["motions"]) == 3
 
 
+@requires_twins
+def test_labels_are_the_same_with_threads_as_without(unposed_fridge, monkeypatch):
+    """The labeler's independent registrations and motion ratings run side by side in threads
+    (sparseart.parallel): with and without masks, 4 threads give the labels, motions and
+    diagnostics of a sequential run."""
+    import dataclasses
+
+    import sparseart.parallel as parallel
+    from sparseart.io.scene import load_scene
+    from sparseart.labelers.rules import RuleBasedLabeler
+
+    grab = _labels(unposed_fridge)
+    scene = load_scene(unposed_fridge)
+    maskless = [dataclasses.replace(cloud, segment=np.full_like(cloud.segment, -1)) for cloud in (grab.start, grab.end)]
+    for start, end in ((grab.start, grab.end), maskless):
+        runs = []
+        for threads in (1, 4):
+            monkeypatch.setattr(parallel, "PARALLEL_THREADS", threads)
+            runs.append(_labels_json(RuleBasedLabeler().label(start, end, scene, aligned=True)))
+        assert runs[0] == runs[1]
+
+
 def _without_seconds(document):
     """The articulation document without its wall-clock times (every "seconds" key, any depth)."""
     if isinstance(document, dict):

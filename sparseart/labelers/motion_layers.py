@@ -54,6 +54,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry.clouds import radius_components, slab_axes
 from ..geometry.transforms import rotation_angle
+from ..parallel import in_parallel
 from .correspondence import PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, motion_size, register_sets, slide_direction
 from .motion_candidates import PLANE_HINGE_SAME_TURN_DEG, frame_slides, plane_hinges, slab_mirrors, twin_slides
 from .motion_ratings import Ratings
@@ -104,39 +105,26 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
     for piece in pieces[1]:
         if len(piece) >= big:
             pool.append(register_sets(context, start_moved, piece, rng)[1])
-    for transform in pool:
-        if transform is None or motion_size(transform)[0] > MAX_TURN_DEG:
-            continue
-        transform = ratings.tighten(transform)
-        if not ratings.known(transform):
-            ratings.add(transform)
-    for shifted in twin_slides(ratings, min_points) + frame_slides(ratings, min_points):
-        shifted = ratings.tighten(shifted)
-        if not ratings.known(shifted):
-            ratings.add(shifted)
-    for k in range(len(ratings.motions)):
-        for mirrored in slab_mirrors(ratings, k):
-            _add_turn(ratings, mirrored)
+    # Each batch of candidates is tightened and rated side by side (Ratings.add_all), in order.
+    ratings.add_all(in_parallel(ratings.tighten, [transform for transform in pool if transform is not None
+                                                  and motion_size(transform)[0] <= MAX_TURN_DEG]))
+    ratings.add_all(in_parallel(ratings.tighten, twin_slides(ratings, min_points) + frame_slides(ratings, min_points)))
+    _add_turns(ratings, [mirrored for k in range(len(ratings.motions)) for mirrored in slab_mirrors(ratings, k)])
     turns = [motion[:3, :3] for motion in ratings.motions]
     # own generator: the residual rounds below draw the same samples with or without these
-    for hinge in plane_hinges(ratings, min_points, np.random.default_rng(context.seed + 11)):
-        if any(np.degrees(rotation_angle(hinge[:3, :3] @ turn.T)) < PLANE_HINGE_SAME_TURN_DEG for turn in turns):
-            continue    # registration found this turn already: a plane hinge would only add a pivot
-        _add_turn(ratings, hinge)
+    # (a plane hinge whose turn registration found already would only add a pivot)
+    _add_turns(ratings, [hinge for hinge in plane_hinges(ratings, min_points, np.random.default_rng(context.seed + 11))
+                         if not any(np.degrees(rotation_angle(hinge[:3, :3] @ turn.T)) < PLANE_HINGE_SAME_TURN_DEG
+                                    for turn in turns)])
     price = max(float(min_points), PRICE_SHARE * (len(start_moved) + len(end_moved)))
     chosen = _select(ratings, price)
     for _ in range(RESIDUAL_ROUNDS):
-        added = False
-        for piece_s, piece_e in _residual_pieces(ratings, chosen, context.radius, min_points):
-            _, found = register_sets(context, piece_s, piece_e, rng)
-            if found is None or motion_size(found)[0] > MAX_TURN_DEG:
-                continue
-            found = ratings.tighten(found)
-            if ratings.known(found):
-                continue
-            ratings.add(found)
-            added = True
-        if not added:
+        found = [register_sets(context, piece_s, piece_e, rng)[1]
+                 for piece_s, piece_e in _residual_pieces(ratings, chosen, context.radius, min_points)]
+        before = len(ratings.motions)
+        ratings.add_all(in_parallel(ratings.tighten, [transform for transform in found if transform is not None
+                                                      and motion_size(transform)[0] <= MAX_TURN_DEG]))
+        if len(ratings.motions) == before:
             break
         chosen = _select(ratings, price)
     floors = (max(min_points, LAYER_MIN_SHARE * len(start_moved)), max(min_points, LAYER_MIN_SHARE * len(end_moved)))
@@ -180,12 +168,11 @@ def _layers_with_reselection(ratings: Ratings, price: float, chosen: list[int],
     return layers
 
 
-def _add_turn(ratings: Ratings, transform: np.ndarray) -> None:
-    """Rate a candidate turn once tightened, unless it then turns more than ``MAX_TURN_DEG`` or
-    equals a rated motion."""
-    transform = ratings.tighten(transform)
-    if motion_size(transform)[0] <= MAX_TURN_DEG and not ratings.known(transform):
-        ratings.add(transform)
+def _add_turns(ratings: Ratings, transforms: list[np.ndarray]) -> None:
+    """Rate candidate turns once tightened (side by side), in order, leaving out those that then
+    turn more than ``MAX_TURN_DEG`` or equal a rated motion."""
+    tightened = in_parallel(ratings.tighten, transforms)
+    ratings.add_all([transform for transform in tightened if motion_size(transform)[0] <= MAX_TURN_DEG])
 
 
 def _layers_over_floor(ratings: Ratings, chosen: list[int], floor_start: float,

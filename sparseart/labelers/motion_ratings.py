@@ -14,6 +14,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry.transforms import screw_from_transform
+from ..parallel import in_parallel
 from .consistency import HIDDEN, VIOLATION, StateViews
 from .correspondence import PairContext, apply, blocked_step_share, refine_icp, slide_sine_points
 
@@ -197,29 +198,55 @@ class Ratings:
         return refine_icp(self.start.points[own_s], self.end.points[own_e], transform, self.radius,
                           schedule=(1.0, 0.5), iterations=6)
 
-    def known(self, transform: np.ndarray) -> bool:
-        """Is an equal motion (points moved within ``SAME_MOTION_RADII`` radii) already rated?"""
+    def known(self, transform: np.ndarray, also: list[np.ndarray] | tuple = ()) -> bool:
+        """Is an equal motion (points moved within ``SAME_MOTION_RADII`` radii) already rated (or
+        among ``also``)?"""
         probe = self.start.points[self.start_moved[:: max(1, len(self.start_moved) // 500)]]
-        for other in self.motions:
+        for other in [*self.motions, *also]:
             gap = np.linalg.norm(apply(transform, probe) - apply(other, probe), axis=1)
             if len(gap) and np.median(gap) < SAME_MOTION_RADII * self.radius:
                 return True
         return False
 
     def add(self, transform: np.ndarray) -> None:
+        """Rate one motion and append it (whether or not an equal one is rated)."""
+        self._append(transform, self._measure(transform))
+
+    def add_all(self, transforms: list[np.ndarray]) -> None:
+        """Rate and append, in order, every motion of ``transforms`` not :meth:`known` (an equal
+        one earlier in the list counts as known): what calling :meth:`add` on each in turn gives,
+        with the ratings computed side by side (:func:`~sparseart.parallel.in_parallel`; each is a
+        pure function of the motion). O(T (N log N + V N)) work for T motions."""
+        fresh: list[np.ndarray] = []
+        for transform in transforms:
+            if not self.known(transform, also=fresh):
+                fresh.append(transform)
+        self.static_tree()      # built once here, not raced for by the threads
+        for transform, measured in zip(fresh, in_parallel(self._measure, fresh)):
+            self._append(transform, measured)
+
+    def _measure(self, transform: np.ndarray) -> tuple:
+        """(ratings row, off-colour hits, physics, slide sine, detached) of one motion."""
         row, off = self.rate_with_colour(transform)
-        self.off_colour.append(off)
         n_start = len(self.start_moved)
         own_s = self.start_moved[row[:n_start] >= 1.0]
         own_e = self.end_moved[row[n_start:] >= 1.0]
+        physics = self.blocked(transform, own_s, own_e, self.start_moved[row[:n_start] > 0],
+                               self.end_moved[row[n_start:] > 0])
+        slide = (slide_sine_points(self.context, transform, self.start.points[own_s], self.end.points[own_e])
+                 if len(own_s) and len(own_e) else 0.0)
+        loose = detached(transform, np.concatenate([self.start.points[own_s], apply(
+            np.linalg.inv(transform), self.end.points[own_e])]), self.static_tree())
+        return row, off, physics, slide, loose
+
+    def _append(self, transform: np.ndarray, measured: tuple) -> None:
+        row, off, physics, slide, loose = measured
         self.motions.append(transform)
         self.rows.append(row)
-        self.physics.append(self.blocked(transform, own_s, own_e, self.start_moved[row[:n_start] > 0],
-                                         self.end_moved[row[n_start:] > 0]))
-        self.slides.append(slide_sine_points(self.context, transform, self.start.points[own_s],
-                                             self.end.points[own_e]) if len(own_s) and len(own_e) else 0.0)
-        self.detached.append(detached(transform, np.concatenate([self.start.points[own_s], apply(
-            np.linalg.inv(transform), self.end.points[own_e])]), self.static_tree()))
+        self.off_colour.append(off)
+        self.physics.append(physics)
+        self.slides.append(slide)
+        self.detached.append(loose)
 
     def static_tree(self) -> cKDTree | None:
         """KD-tree of at most ``STATIC_SAMPLE`` of the start points that did not move (None when
