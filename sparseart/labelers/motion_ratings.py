@@ -208,14 +208,10 @@ class Ratings:
                 return True
         return False
 
-    def add(self, transform: np.ndarray) -> None:
-        """Rate one motion and append it (whether or not an equal one is rated)."""
-        self._append(transform, self._measure(transform))
-
     def add_all(self, transforms: list[np.ndarray]) -> None:
         """Rate and append, in order, every motion of ``transforms`` not :meth:`known` (an equal
-        one earlier in the list counts as known): what calling :meth:`add` on each in turn gives,
-        with the ratings computed side by side (:func:`~sparseart.parallel.in_parallel`; each is a
+        one earlier in the list counts as known), as rating them one by one in turn would, with the
+        ratings computed side by side (:func:`~sparseart.parallel.in_parallel`; each is a
         pure function of the motion). O(T (N log N + V N)) work for T motions."""
         fresh: list[np.ndarray] = []
         for transform in transforms:
