@@ -619,9 +619,10 @@ def score_pairs(ctx: PairContext, match_min_score: float, motion_hints: list[np.
         ctx.set_static(np.concatenate([ctx.start_groups[i].indices for i in sorted(settled_start)]))
     rng = np.random.default_rng(ctx.seed + 3)
     keys = [key for key in sorted(identity) if key[0] not in settled_start and key[1] not in settled_end]
-    draws = [_coarse_samples(ctx, i, j, rng) for i, j in keys]     # drawn in key order, then registered
-    registrations = dict(zip(keys, in_parallel(                     # side by side (pure given the draws)
-        lambda item: _register_pair(ctx, item[0][0], item[0][1], match_min_score, item[1]), list(zip(keys, draws)))))
+    # the coarse samples drawn in key order, then the pairs registered side by side (pure given them)
+    draws = [_coarse_samples(ctx, i, j, rng) for i, j in keys]
+    registered = in_parallel(lambda item: _register_pair(ctx, *item[0], match_min_score, item[1]), list(zip(keys, draws)))
+    registrations = dict(zip(keys, registered))
     # Pairs the cheap hypotheses explain poorly get the global registration too: the best
     # ``GLOBAL_PER_GROUP`` such pairs of every start group (the rest are not its partner anyway).
     for i in sorted({key[0] for key in registrations}):

@@ -54,7 +54,6 @@ from scipy.spatial import cKDTree
 
 from ..geometry.clouds import radius_components, slab_axes
 from ..geometry.transforms import rotation_angle
-from ..parallel import in_parallel
 from .correspondence import PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, motion_size, register_sets, slide_direction
 from .motion_candidates import PLANE_HINGE_SAME_TURN_DEG, frame_slides, plane_hinges, slab_mirrors, twin_slides
 from .motion_ratings import Ratings
@@ -105,10 +104,9 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
     for piece in pieces[1]:
         if len(piece) >= big:
             pool.append(register_sets(context, start_moved, piece, rng)[1])
-    # Each batch of candidates is tightened and rated side by side (Ratings.add_all), in order.
-    ratings.add_all(in_parallel(ratings.tighten, [transform for transform in pool if transform is not None
-                                                  and motion_size(transform)[0] <= MAX_TURN_DEG]))
-    ratings.add_all(in_parallel(ratings.tighten, twin_slides(ratings, min_points) + frame_slides(ratings, min_points)))
+    # Each batch of candidates is tightened and rated side by side (Ratings.tighten_all, add_all), in order.
+    ratings.add_all(ratings.tighten_all(_within_turn_limit(pool)))
+    ratings.add_all(ratings.tighten_all(twin_slides(ratings, min_points) + frame_slides(ratings, min_points)))
     _add_turns(ratings, [mirrored for k in range(len(ratings.motions)) for mirrored in slab_mirrors(ratings, k)])
     turns = [motion[:3, :3] for motion in ratings.motions]
     # own generator: the residual rounds below draw the same samples with or without these
@@ -122,8 +120,7 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
         found = [register_sets(context, piece_s, piece_e, rng)[1]
                  for piece_s, piece_e in _residual_pieces(ratings, chosen, context.radius, min_points)]
         before = len(ratings.motions)
-        ratings.add_all(in_parallel(ratings.tighten, [transform for transform in found if transform is not None
-                                                      and motion_size(transform)[0] <= MAX_TURN_DEG]))
+        ratings.add_all(ratings.tighten_all(_within_turn_limit(found)))
         if len(ratings.motions) == before:
             break
         chosen = _select(ratings, price)
@@ -171,8 +168,12 @@ def _layers_with_reselection(ratings: Ratings, price: float, chosen: list[int],
 def _add_turns(ratings: Ratings, transforms: list[np.ndarray]) -> None:
     """Rate candidate turns once tightened (side by side), in order, leaving out those that then
     turn more than ``MAX_TURN_DEG`` or equal a rated motion."""
-    tightened = in_parallel(ratings.tighten, transforms)
-    ratings.add_all([transform for transform in tightened if motion_size(transform)[0] <= MAX_TURN_DEG])
+    ratings.add_all(_within_turn_limit(ratings.tighten_all(transforms)))
+
+
+def _within_turn_limit(transforms: list[np.ndarray | None]) -> list[np.ndarray]:
+    """The motions that exist and turn by at most ``MAX_TURN_DEG`` (real joints rarely turn more)."""
+    return [t for t in transforms if t is not None and motion_size(t)[0] <= MAX_TURN_DEG]
 
 
 def _layers_over_floor(ratings: Ratings, chosen: list[int], floor_start: float,

@@ -218,8 +218,18 @@ class Ratings:
             if not self.known(transform, also=fresh):
                 fresh.append(transform)
         self.static_tree()      # built once here, not raced for by the threads
-        for transform, measured in zip(fresh, in_parallel(self._measure, fresh)):
-            self._append(transform, measured)
+        for transform, (row, off, physics, slide, loose) in zip(fresh, in_parallel(self._measure, fresh)):
+            self.motions.append(transform)
+            self.rows.append(row)
+            self.off_colour.append(off)
+            self.physics.append(physics)
+            self.slides.append(slide)
+            self.detached.append(loose)
+
+    def tighten_all(self, transforms: list[np.ndarray]) -> list[np.ndarray]:
+        """:meth:`tighten` of each motion, side by side (each a pure function of its motion), in
+        order."""
+        return in_parallel(self.tighten, transforms)
 
     def _measure(self, transform: np.ndarray) -> tuple:
         """(ratings row, off-colour hits, physics, slide sine, detached) of one motion."""
@@ -234,15 +244,6 @@ class Ratings:
         loose = detached(transform, np.concatenate([self.start.points[own_s], apply(
             np.linalg.inv(transform), self.end.points[own_e])]), self.static_tree())
         return row, off, physics, slide, loose
-
-    def _append(self, transform: np.ndarray, measured: tuple) -> None:
-        row, off, physics, slide, loose = measured
-        self.motions.append(transform)
-        self.rows.append(row)
-        self.off_colour.append(off)
-        self.physics.append(physics)
-        self.slides.append(slide)
-        self.detached.append(loose)
 
     def static_tree(self) -> cKDTree | None:
         """KD-tree of at most ``STATIC_SAMPLE`` of the start points that did not move (None when
