@@ -69,6 +69,7 @@ from sparseart.joints.reliability import (
     MIN_INLIER_FRACTION,
     FitWarning,
     confidence,
+    covered_fraction,
     prismatic_warnings,
     reliability_warnings,
     revolute_warnings,
@@ -354,12 +355,15 @@ def _estimate(fit: ModelFit, part: PartData, covariances: dict[str, np.ndarray],
     rotation = transform_n[:3, :3]
     transform = make_transform(rotation, scale * transform_n[:3, 3] + centre - rotation @ centre)
     floor = residual_floor(part, config)
-    diagnostics.update({"pairs": fit.pairs, "match_fraction": fit.match_fraction, "condition": fit.condition,
+    covered = covered_fraction(part.match.start, part.match.end, part.match.end_tree, fit.rotation, fit.translation,
+                               fit.tau)
+    diagnostics.update({"pairs": fit.pairs, "match_fraction": fit.match_fraction, "covered_fraction": covered,
+                        "condition": fit.condition,
                         "residual_floor": floor * scale,
                         "part_radius": part_radius * scale, "warning_codes": [w.code.value for w in warnings],
                         **sigma_parts})
     return JointEstimate(type=kind, axis=axis.copy(), origin=origin, angle=estimate_angle, distance=estimate_distance,
                          transform=transform, uncertainty=uncertainty, residual=residual * scale,
-                         confidence=confidence(fit.match_fraction, residual, part_radius, warnings, floor),
+                         confidence=confidence(covered, residual, part_radius, warnings, floor),
                          slide=slide,
                          warnings=[w.message for w in warnings], diagnostics=diagnostics)
