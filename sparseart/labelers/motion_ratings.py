@@ -254,17 +254,16 @@ class Ratings:
         """(ratings row, off-colour hits, physics, slide sine, detached) of one motion."""
         row, off = self.rate_with_colour(transform)
         n_start = len(self.start_moved)
-        own_s = self.start_moved[row[:n_start] >= 1.0]
-        own_e = self.end_moved[row[n_start:] >= 1.0]
+        hit_s, hit_e = row[:n_start] >= 1.0, row[n_start:] >= 1.0
+        own_s, own_e = self.start_moved[hit_s], self.end_moved[hit_e]
         physics = self.blocked(transform, own_s, own_e, self.start_moved[row[:n_start] > 0],
                                self.end_moved[row[n_start:] > 0])
         slide = (slide_sine_points(self.context, transform, self.start.points[own_s], self.end.points[own_e])
                  if len(own_s) and len(own_e) else 0.0)
-        seen_start_hits = int(np.count_nonzero((row[:n_start] >= 1.0) & ~self.start_unseen))
-        seen_end_hits = int(np.count_nonzero((row[n_start:] >= 1.0) & ~self.end_unseen))
+        seen_both = seen_both_ways(int(np.count_nonzero(hit_s & ~self.start_unseen)),
+                                   int(np.count_nonzero(hit_e & ~self.end_unseen)))
         loose = detached(transform, np.concatenate([self.start.points[own_s], apply(
-            np.linalg.inv(transform), self.end.points[own_e])]), self.static_tree(),
-            seen_both=seen_both_ways(seen_start_hits, seen_end_hits))
+            np.linalg.inv(transform), self.end.points[own_e])]), self.static_tree(), seen_both=seen_both)
         return row, off, physics, slide, loose
 
     def static_tree(self) -> cKDTree | None:
