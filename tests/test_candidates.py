@@ -138,3 +138,76 @@ def test_tied_hinge_rivals_widen_the_axis_sigma_and_far_ones_do_not():
     assert chosen is alone and "tied_hinge_deg" not in chosen.diagnostics
     widen_for_tied_hinges(chosen, chosen.diagnostics.get("tied_hinge_deg"))
     assert chosen.uncertainty["axis_deg"] == 2.0
+
+
+def _face(rng: np.random.Generator, noise: float = 0.001) -> np.ndarray:
+    """A 0.4 x 0.2 face in the z = 0 plane (normal +z), about 3000 points, with depth noise."""
+    points = np.column_stack([rng.uniform(-0.2, 0.2, 3000), rng.uniform(-0.1, 0.1, 3000), np.zeros(3000)])
+    points[:, 2] += rng.normal(0.0, noise, len(points))
+    return points
+
+
+def _slide(axis: np.ndarray, distance: float) -> JointEstimate:
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    transform = np.eye(4)
+    transform[:3, 3] = axis * distance
+    return JointEstimate(type="prismatic", axis=axis, origin=np.zeros(3), angle=None, distance=distance,
+                         transform=transform, uncertainty={"axis_deg": 1.0}, residual=0.001, confidence=0.9)
+
+
+def test_a_slide_along_a_given_axis_fits_only_the_distance():
+    from sparseart.joints.fit import fit_joint
+
+    rng = np.random.default_rng(0)
+    start = _face(rng)
+    end = _face(rng) + np.array([0.0, 0.0, 0.2])
+    tilted = np.array([0.0, np.sin(np.radians(20.0)), np.cos(np.radians(20.0))])
+    held = fit_joint(start, end, joint_type="prismatic", slide_axis=tilted * 3.0)
+    assert np.allclose(held.axis, tilted, atol=1e-12)             # the direction is held exactly (unit)
+    assert held.diagnostics["slide_axis_held"] is True
+    assert "ill_conditioned" not in held.diagnostics["warning_codes"]   # the held tangents are no defect
+    true = fit_joint(start, end, joint_type="prismatic", slide_axis=[0.0, 0.0, 1.0])
+    assert abs(true.distance - 0.2) < 0.005
+    assert true.residual < held.residual                           # the wrong direction fits worse
+    with pytest.raises(ValueError, match="slide_axis"):
+        fit_joint(start, end, joint_type="auto", slide_axis=[0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match="slide_axis"):
+        fit_joint(start, end, joint_type="prismatic", slide_axis=[0.0, 0.0, 0.0])
+
+
+def test_front_normal_needs_one_face_seen_alike_in_both_states():
+    from sparseart.joints.candidates import front_normal
+
+    rng = np.random.default_rng(1)
+    start, end = _face(rng), _face(rng) + np.array([0.0, 0.0, 0.2])
+    normal, disagreement = front_normal(start, end, np.array([0.0, 0.3, -1.0]))
+    assert np.degrees(np.arccos(min(1.0, -normal[2]))) < 1.0       # oriented along the given direction
+    assert disagreement < 1.0
+    blob = rng.normal(0.0, 0.1, (3000, 3))                          # no dominant plane
+    assert front_normal(blob, blob + 0.2, np.array([0.0, 0.0, 1.0])) is None
+    turned = end @ Rotation.from_euler("x", 10.0, degrees=True).as_matrix().T   # the face turned: no slide
+    assert front_normal(start, turned, np.array([0.0, 0.0, 1.0])) is None
+
+
+def test_a_slide_tilted_within_its_face_is_taken_along_the_face_normal():
+    from sparseart.joints.candidates import along_front_normal
+
+    rng = np.random.default_rng(2)
+    start, end = _face(rng), _face(rng) + np.array([0.0, 0.0, 0.2])
+    # a free fit 20 deg off in the face's plane (what a made-up outline does on real input)
+    tilted = _slide([0.0, np.sin(np.radians(20.0)), np.cos(np.radians(20.0))], 0.21)
+    held = along_front_normal(tilted, start, end, {})
+    assert held is not tilted
+    assert np.degrees(np.arccos(min(1.0, held.axis[2]))) < 1.0
+    assert abs(held.distance - 0.2) < 0.005
+    assert held.diagnostics["free_slide"]["tilt_deg"] == pytest.approx(20.0, abs=1.0)
+    assert any("face normal" in w for w in held.warnings)
+    # a slide within the face (a window pane, a rack) and one that already follows the normal are kept
+    pane_end = _face(rng) + np.array([0.15, 0.0, 0.0])
+    pane = _slide([1.0, 0.0, 0.0], 0.15)
+    assert along_front_normal(pane, start, pane_end, {}) is pane
+    straight = _slide([0.0, np.sin(np.radians(1.0)), np.cos(np.radians(1.0))], 0.2)
+    assert along_front_normal(straight, start, end, {}) is straight
+    turn = _slide([0.0, 0.0, 1.0], 0.2)
+    turn.type, turn.distance, turn.angle = "revolute", None, 0.3
+    assert along_front_normal(turn, start, end, {}) is turn

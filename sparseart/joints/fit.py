@@ -159,6 +159,7 @@ def fit_joint(
     start_confidence: np.ndarray | None = None,
     end_confidence: np.ndarray | None = None,
     frame_error: tuple[float, float] | None = None,
+    slide_axis: np.ndarray | None = None,
 ) -> JointEstimate:
     """Fit the joint that moves a part from ``start_points`` to ``end_points``.
 
@@ -181,6 +182,10 @@ def fit_joint(
     shows a rotation of that size) and the stated uncertainty (``uncertainty.add_frame_sigma``;
     the part before it in ``diagnostics["uncertainty_before_frame"]``), so the reliability
     warnings and the confidence see it. None or a zero misfit: the states agree.
+    slide_axis: (3,) direction, input frame: a prismatic fit held to it (only the distance is
+    fitted; requires ``joint_type="prismatic"``). The axis then has no Jacobian or resampling
+    variance -- what the caller knows of the direction's own error must be added to the stated
+    sigma by the caller.
     Returns a ``JointEstimate`` in the input frame and units: angle >= 0 radians (axis oriented
     accordingly) or distance >= 0; uncertainty 1-sigma including systematic effects (step 5 of
     the module docstring); warnings for unreliable estimates (step 6, codes in
@@ -193,6 +198,13 @@ def fit_joint(
     config = config or FitConfig()
     if joint_type not in ("auto", "revolute", "prismatic"):
         raise ValueError(f"fit_joint: joint_type must be auto, revolute or prismatic, got {joint_type!r}")
+    if slide_axis is not None:
+        slide_axis = np.asarray(slide_axis, dtype=np.float64).reshape(-1)
+        if joint_type != "prismatic" or slide_axis.shape != (3,) or not np.all(np.isfinite(slide_axis)) \
+                or np.linalg.norm(slide_axis) < 1e-12:
+            raise ValueError("fit_joint: slide_axis must be a finite non-zero (3,) direction, with joint_type "
+                             "'prismatic'")
+        slide_axis = slide_axis / np.linalg.norm(slide_axis)
     clock = _Clock()
     part = prepare_part(start_points, end_points, config, start_confidence=start_confidence,
                         end_confidence=end_confidence)
@@ -203,11 +215,13 @@ def fit_joint(
     if part.key is not None:
         seed_key = (fingerprint(np.asarray(initial_transform, dtype=np.float64)) if initial_transform is not None
                     else tuple(None if c is None else fingerprint(np.asarray(c)) for c in (start_colors, end_colors)))
-        key = (part.key, seed_key, joint_type, frame_error)
+        key = (part.key, seed_key, joint_type, frame_error,
+               None if slide_axis is None else fingerprint(slide_axis))
     fitted = _fitted.get(key) if key is not None else None
     if fitted is None:
         fitted = _fit_models(part, joint_type, initial_transform, start_colors, end_colors, config, clock,
-                             turn=frame_turn(*frame_error) if frame_error is not None else 0.0)
+                             turn=frame_turn(*frame_error) if frame_error is not None else 0.0,
+                             slide_axis=slide_axis)
         if key is not None:
             _fitted.put(key, fitted)
     diagnostics: dict = {"scale": part.scale, "n_start": len(part.start), "n_end": len(part.end),
@@ -232,12 +246,13 @@ def fit_joint(
 
 def _fit_models(part: PartData, joint_type: str, initial_transform: np.ndarray | None,
                 start_colors: np.ndarray | None, end_colors: np.ndarray | None, config: FitConfig,
-                clock: _Clock, turn: float = 0.0) -> _Fitted:
+                clock: _Clock, turn: float = 0.0, slide_axis: np.ndarray | None = None) -> _Fitted:
     """Steps 2-4 of the module docstring: seed -> model fit(s) -> type choice (the rotation judged
-    against the static frame's turn ``turn``, rad)."""
-    diagnostics: dict = {}
+    against the static frame's turn ``turn``, rad); ``slide_axis``: the prismatic model held to
+    that direction (normalisation only shifts and scales, so it is the same direction there)."""
+    diagnostics: dict = {} if slide_axis is None else {"slide_axis_held": True}
     initial, seed_info = initial_motion(part, initial_transform, start_colors, end_colors, config)
-    revolute_init, prismatic_init, screw_info = initial_models(initial, part.start)
+    revolute_init, prismatic_init, screw_info = initial_models(initial, part.start, slide_axis)
     diagnostics.update(seed_info)
     diagnostics.update(screw_info)
     clock.lap("seeds")

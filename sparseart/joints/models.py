@@ -49,25 +49,30 @@ class Revolute:
 
 
 class Prismatic:
-    """Prismatic parameters around a reference state: x = [u1, u2, distance]."""
+    """Prismatic parameters around a reference state: x = [u1, u2, distance]. ``fixed``: the
+    axis is held (a slide along a known direction): u1, u2 have no effect, so the solvers leave
+    them at 0 and the Jacobian covariance gives the axis no variance."""
 
     kind = "prismatic"
 
-    def __init__(self, axis: np.ndarray, distance: float):
+    def __init__(self, axis: np.ndarray, distance: float, fixed: bool = False):
         self.axis = unit(axis)
         self.basis = tangent_basis(self.axis)
+        self.fixed = fixed
         self.x0 = np.array([0.0, 0.0, float(distance)])
 
     def unpack(self, x: np.ndarray) -> tuple[np.ndarray, float]:
-        return perturb_axis(self.axis, self.basis, x[:2]), float(x[2])
+        return (self.axis.copy() if self.fixed else perturb_axis(self.axis, self.basis, x[:2])), float(x[2])
 
     def motion(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        if self.fixed:
+            return np.eye(3), float(x[2]) * self.axis
         direction = self.axis + self.basis @ x[:2]
         return np.eye(3), float(x[2]) * direction / np.sqrt(direction @ direction)
 
     def recentred(self, x: np.ndarray) -> Prismatic:
         axis, distance = self.unpack(x)
-        return Prismatic(axis, distance)
+        return Prismatic(axis, distance, self.fixed)
 
 
 Model = Revolute | Prismatic
@@ -80,9 +85,12 @@ def _rodrigues(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.eye(3) + np.sin(angle) * cross + (1.0 - np.cos(angle)) * (cross @ cross)
 
 
-def initial_models(transform: np.ndarray, start: np.ndarray) -> tuple[Revolute, Prismatic, dict]:
+def initial_models(transform: np.ndarray, start: np.ndarray,
+                   slide_axis: np.ndarray | None = None) -> tuple[Revolute, Prismatic, dict]:
     """Revolute and prismatic initial models from a normalised (4, 4) start->end rigid motion,
-    and {"screw_angle_deg", "screw_note"}. start (N, 3): normalised start points. O(N)."""
+    and {"screw_angle_deg", "screw_note"}. start (N, 3): normalised start points.
+    slide_axis: (3,) a direction the prismatic model is held to (its distance starts at the
+    motion's shift along it). O(N)."""
     reference = start.mean(axis=0)
     screw = screw_from_transform(transform[:3, :3], transform[:3, 3], reference=reference)
     shift = apply_transform(transform, reference[None])[0] - reference
@@ -96,5 +104,8 @@ def initial_models(transform: np.ndarray, start: np.ndarray) -> tuple[Revolute, 
         axis = unit(axis) if np.linalg.norm(axis) > 1e-6 else tangent_basis(direction)[:, 0]
         lever = 10.0
         revolute = Revolute(axis, reference - lever * np.cross(direction, axis), shift_norm / lever, reference)
-    prismatic = Prismatic(shift / shift_norm if shift_norm > 1e-12 else np.array([1.0, 0.0, 0.0]), shift_norm)
+    if slide_axis is not None:
+        prismatic = Prismatic(slide_axis, float(shift @ unit(slide_axis)), fixed=True)
+    else:
+        prismatic = Prismatic(shift / shift_norm if shift_norm > 1e-12 else np.array([1.0, 0.0, 0.0]), shift_norm)
     return revolute, prismatic, {"screw_angle_deg": float(np.degrees(screw.angle)), "screw_note": screw.note}

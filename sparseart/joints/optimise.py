@@ -510,7 +510,10 @@ def covariance(problem: Problem, x: np.ndarray, f_scale: float, factor: float,
     align_count = problem.align_rows
     align = residual[:align_count] * robust[:align_count]
     variance = float(align @ align) / max(align_count - x.size, 1)
-    singular = np.linalg.svd(weighted_jacobian, compute_uv=False)
+    # parameters the model holds (identically zero columns: a slide along a given axis) do not
+    # make the problem ill-conditioned
+    active = np.any(weighted_jacobian != 0.0, axis=0)
+    singular = np.linalg.svd(weighted_jacobian[:, active], compute_uv=False) if active.any() else np.zeros(1)
     condition = float(singular[0] / singular[-1]) if singular[-1] > 0 else float("inf")
     normal = weighted_jacobian.T @ weighted_jacobian
     return factor * variance * np.linalg.pinv(normal, rcond=1e-12), condition, weighted_jacobian, residual * robust
