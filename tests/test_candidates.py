@@ -183,6 +183,12 @@ def test_front_normal_needs_one_face_seen_alike_in_both_states():
     normal, disagreement = front_normal(start, end, np.array([0.0, 0.3, -1.0]))
     assert np.degrees(np.arccos(min(1.0, -normal[2]))) < 1.0       # oriented along the given direction
     assert disagreement < 1.0
+    # a pane sliding within its face: the normal is perpendicular to the slide, and the two
+    # states' normals must not cancel when averaged
+    for k in range(8):     # (each state's plane fit picks either sign of its normal)
+        pane_end = _face(np.random.default_rng(10 + k)) + np.array([0.15, 0.0, 0.0])
+        pane, _ = front_normal(start, pane_end, np.array([1.0, 0.0, 0.0]), seed=k)
+        assert abs(pane[2]) > 0.999
     blob = rng.normal(0.0, 0.1, (3000, 3))                          # no dominant plane
     assert front_normal(blob, blob + 0.2, np.array([0.0, 0.0, 1.0])) is None
     turned = end @ Rotation.from_euler("x", 10.0, degrees=True).as_matrix().T   # the face turned: no slide

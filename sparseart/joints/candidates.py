@@ -243,12 +243,15 @@ def front_normal(part_start: np.ndarray, part_end: np.ndarray, direction: np.nda
         normal, centre = plane
         if np.mean(np.abs((points - centre) @ normal) < HINGE_PLANE_SPACINGS * spacing) < FRONT_MIN_SHARE:
             return None
-        normals.append(normal if float(normal @ direction) >= 0 else -normal)
+        normals.append(normal)
+    if float(normals[0] @ normals[1]) < 0:      # one orientation for both before averaging
+        normals[1] = -normals[1]
     disagreement = axis_angle_deg(normals[0], normals[1])
     if disagreement > FRONT_STATES_AGREE_DEG:
         return None
     mean = normals[0] + normals[1]
-    return mean / np.linalg.norm(mean), float(disagreement)
+    mean /= np.linalg.norm(mean)
+    return (mean if float(mean @ direction) >= 0 else -mean), float(disagreement)
 
 
 def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: np.ndarray, fit_options: dict,
