@@ -269,10 +269,11 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
     deg (the drawer slides along its front's normal, as drawers, trays and pull-outs do); a
     sliding window or a wire rack slides within its face, 64-90 deg from the normal, and keeps
     its fit, as does a part whose face is oblique to its slide beyond ``FRONT_MAX_TILT_DEG`` (a
-    toaster lever's, 35-37 deg; an oblique face within it would be pulled onto its normal). The held fit's axis sigma gains the two states' normal disagreement (half the angle
-    between them, in quadrature), and ``diagnostics["free_slide"]`` keeps the free fit's axis and
-    tilt. ``fit_options``: the keyword arguments of the free fit (colours, config, confidences,
-    frame error). O(one prismatic fit + :func:`front_normal`)."""
+    toaster lever's, 35-37 deg; an oblique face within it would be pulled onto its normal).
+    The held fit's axis sigma gains the two states' normal disagreement (half the angle between
+    them, in quadrature), and ``diagnostics["free_slide"]`` keeps the free fit's axis and tilt.
+    ``fit_options``: the keyword arguments of the free fit (colours, config, confidences, frame
+    error). O(one prismatic fit + :func:`front_normal`)."""
     if joint.type != "prismatic" or not joint.distance:
         return joint
     front = front_normal(part_start, part_end, joint.axis, seed)
