@@ -189,6 +189,17 @@ def test_front_normal_needs_one_face_seen_alike_in_both_states():
         pane_end = _face(np.random.default_rng(10 + k)) + np.array([0.15, 0.0, 0.0])
         pane, _ = front_normal(start, pane_end, np.array([1.0, 0.0, 0.0]), seed=k)
         assert abs(pane[2]) > 0.999
+    # two views of the start that read the face 8 deg apart (each view's own depth warp): the
+    # fused normal is not trusted when the views are known, and is without them
+    tilted = _face(rng) @ Rotation.from_euler("y", 8.0, degrees=True).as_matrix().T
+    fused = np.concatenate([start[:1500], tilted[:1500]])
+    views = np.repeat([0, 1], 1500)
+    assert front_normal(fused, end, np.array([0.0, 0.0, 1.0]), start_views=views,
+                        end_views=np.zeros(len(end), dtype=int)) is None
+    assert front_normal(fused, end, np.array([0.0, 0.0, 1.0])) is not None
+    agreeing = front_normal(start, end, np.array([0.0, 0.0, 1.0]), start_views=np.arange(len(start)) % 2,
+                            end_views=np.arange(len(end)) % 3)
+    assert agreeing is not None and agreeing[1] < 2.0
     blob = rng.normal(0.0, 0.1, (3000, 3))                          # no dominant plane
     assert front_normal(blob, blob + 0.2, np.array([0.0, 0.0, 1.0])) is None
     turned = end @ Rotation.from_euler("x", 10.0, degrees=True).as_matrix().T   # the face turned: no slide
