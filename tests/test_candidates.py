@@ -208,11 +208,14 @@ def test_front_normal_needs_one_face_seen_alike_in_both_states():
 
 def test_a_slide_tilted_within_its_face_is_taken_along_the_face_normal():
     from sparseart.joints.candidates import along_front_normal
+    from sparseart.joints.fit import fit_joint
 
     rng = np.random.default_rng(2)
     start, end = _face(rng), _face(rng) + np.array([0.0, 0.0, 0.2])
-    # a free fit 20 deg off in the face's plane (what a made-up outline does on real input)
+    # a free fit 20 deg off in the face's plane (what a made-up outline does on real input),
+    # with the residual such a fit has on real input: about that of the slide along the normal
     tilted = _slide([0.0, np.sin(np.radians(20.0)), np.cos(np.radians(20.0))], 0.21)
+    tilted.residual = 1.05 * fit_joint(start, end, joint_type="prismatic", slide_axis=[0.0, 0.0, 1.0]).residual
     held = along_front_normal(tilted, start, end, {})
     assert held is not tilted
     assert np.degrees(np.arccos(min(1.0, held.axis[2]))) < 1.0
@@ -225,6 +228,12 @@ def test_a_slide_tilted_within_its_face_is_taken_along_the_face_normal():
     assert along_front_normal(pane, start, pane_end, {}) is pane
     straight = _slide([0.0, np.sin(np.radians(1.0)), np.cos(np.radians(1.0))], 0.2)
     assert along_front_normal(straight, start, end, {}) is straight
+    # a face whose outline does fix a slide 20 deg off its normal (clean points, the free fit
+    # lays it far better than a slide along the normal would): the data's answer stays
+    oblique = np.array([0.0, np.sin(np.radians(20.0)), np.cos(np.radians(20.0))])
+    oblique_end = _face(rng) + 0.2 * oblique
+    free = fit_joint(start, oblique_end, joint_type="prismatic", slide_axis=oblique)
+    assert along_front_normal(free, start, oblique_end, {}) is free
     turn = _slide([0.0, 0.0, 1.0], 0.2)
     turn.type, turn.distance, turn.angle = "revolute", None, 0.3
     assert along_front_normal(turn, start, end, {}) is turn
