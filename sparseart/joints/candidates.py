@@ -217,14 +217,13 @@ def static_axis_seeds(joint: JointEstimate, static_points: np.ndarray | None) ->
 
 
 FRONT_MIN_SHARE = 0.6           # the part's dominant plane holds at least this share of its points in each state
-FRONT_STATES_AGREE_DEG = 5.0    # ... and its normals in the two states agree within this (a slide keeps it)
+FRONT_STATES_AGREE_DEG = 5.0    # ... and its normals in both states and in every view agree within this (a slide
+                                # keeps it)
+FRONT_VIEW_MIN_POINTS = 100     # a view's own face normal is read when it holds this many of the part's points
 FRONT_MIN_TILT_DEG = 2.0        # a free slide this close to the face normal is kept (they agree to the plane fit)
 FRONT_MAX_RESIDUAL_RATIO = 1.2  # the held slide replaces the free one only when its residual is within this ratio
 FRONT_MAX_TILT_DEG = 30.0       # a free slide farther from the face normal than this slides within the face
                                 # (or along an oblique face: a toaster lever's, 35-37 deg, clean renders)
-
-
-FRONT_VIEW_MIN_POINTS = 100     # a view's own face normal is read when it holds this many of the part's points
 
 
 def front_normal(part_start: np.ndarray, part_end: np.ndarray, direction: np.ndarray, seed: int = 0,
@@ -263,9 +262,10 @@ def front_normal(part_start: np.ndarray, part_end: np.ndarray, direction: np.nda
         return None
     read = list(states)
     for points, views in ((part_start, start_views), (part_end, end_views)):
-        if views is None or len(np.unique(views)) < 2:
+        seen_by = np.unique(views) if views is not None else []
+        if len(seen_by) < 2:
             continue
-        for view in np.unique(views):
+        for view in seen_by:
             own = points[views == view]
             normal = face(own) if len(own) >= FRONT_VIEW_MIN_POINTS else None
             if normal is not None:
@@ -317,13 +317,15 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
         return joint
     seed_motion = np.eye(4)
     seed_motion[:3, 3] = normal * float(joint.distance) * float(np.cos(np.radians(tilt)))
-    try:
-        held = fit_joint(part_start, part_end, joint_type="prismatic", initial_transform=seed_motion,
-                         slide_axis=normal, **fit_options)
+    held_fit = dict(joint_type="prismatic", initial_transform=seed_motion, slide_axis=normal, **fit_options)
+    try:    # without the resampling part of its sigma first: it is paid only for a held fit that is kept
+        held = fit_joint(part_start, part_end, uncertainty=False, **held_fit)
     except ValueError:
         return joint
     if held.residual > FRONT_MAX_RESIDUAL_RATIO * joint.residual:
         return joint            # the data tell the free slide from the face's normal: keep the data's answer
+    # the same fit again with its full sigma (fit_joint remembers the model fit: same point estimate)
+    held = fit_joint(part_start, part_end, **held_fit)
     sigma = float(np.hypot(held.uncertainty.get("axis_deg", 0.0), disagreement / 2.0))
     held.uncertainty["axis_deg"] = sigma
     held.diagnostics["free_slide"] = {"axis": joint.axis.tolist(), "tilt_deg": float(tilt),
