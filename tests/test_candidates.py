@@ -37,6 +37,10 @@ def test_a_half_turn_gives_way_to_a_comparable_smaller_motion():
     far = _estimate("prismatic", 0.03)                          # 2.4 x worse: not an alternative
     assert without_half_turns([spin, far]) == [spin, far]
     assert without_half_turns([door, slide]) == [door, slide]   # nothing turns that far
+    # the best turns less and its mirror half-turn is comparable: the half-turn goes too, so that
+    # no tie-break among hinges can pick it (a door opened 28 deg and its 155 deg mirror)
+    mirror = _estimate("revolute", 0.0130, angle_deg=155.0)
+    assert without_half_turns([door, mirror]) == [door]
 
 
 def _box(count: int, half: list[float], rng: np.random.Generator) -> np.ndarray:
@@ -133,6 +137,11 @@ def test_tied_hinge_rivals_widen_the_axis_sigma_and_far_ones_do_not():
     widen_for_tied_hinges(chosen, chosen.diagnostics["tied_hinge_deg"])
     assert chosen.uncertainty["axis_deg"] == pytest.approx(9.0) and "rival hinge axis" in chosen.warnings[-1]
 
+    # a rival on the wall that fits 35 % worse is no tie: the better fit stays
+    better = hinge(0.0310, [0, 1, 0], [0.6, 0.0, 0.0])
+    assert choose_fit([better, hinge(0.0420, [0, 0, 1], [0.0, 0.0, 0.0])], part, static) is better
+    assert choose_fit([better, on_wall := hinge(0.0330, [0, 0, 1], [0.0, 0.0, 0.0])], part, static) is on_wall
+
     alone = hinge(0.0101, [0, 0, 1], [0.0, 0.0, 0.0])
     chosen = choose_fit([alone, hinge(0.0099, [0, 1, 0], [0.6, 0.0, 0.0])], part, static)
     assert chosen is alone and "tied_hinge_deg" not in chosen.diagnostics
@@ -204,6 +213,56 @@ def test_front_normal_needs_one_face_seen_alike_in_both_states():
     assert front_normal(blob, blob + 0.2, np.array([0.0, 0.0, 1.0])) is None
     turned = end @ Rotation.from_euler("x", 10.0, degrees=True).as_matrix().T   # the face turned: no slide
     assert front_normal(start, turned, np.array([0.0, 0.0, 1.0])) is None
+
+
+def _open_drawer(rng: np.random.Generator, front_points: int, slide: float = 0.2) -> np.ndarray:
+    """An open drawer slid by ``slide`` along +z: ``front_points`` of its front (the ``_face``
+    plane, moved), 1300 of its bottom (y = -0.1) and 900 of a side (x = 0.2) behind the front."""
+    front = _face(rng)[:front_points] + np.array([0.0, 0.0, slide])
+    bottom = np.column_stack([rng.uniform(-0.2, 0.2, 1300), np.full(1300, -0.1), rng.uniform(0.0, slide, 1300)])
+    side = np.column_stack([np.full(900, 0.2), rng.uniform(-0.1, 0.1, 900), rng.uniform(0.0, slide, 900)])
+    box = np.concatenate([bottom, side])
+    box += rng.normal(0.0, 0.001, box.shape)
+    return np.concatenate([front, box])
+
+
+def test_front_normal_reads_the_face_of_an_open_drawer_from_its_closed_state():
+    """Closed, a drawer shows its front alone; open, its box outweighs the front (here the front
+    holds 27 % of the points, the bottom 43 %): the open state's face is read from its points
+    facing like the closed front, in either order of the states; a box without its front gives none."""
+    from sparseart.joints.candidates import front_normal
+
+    rng = np.random.default_rng(3)
+    closed, opened = _face(rng), _open_drawer(rng, 800)
+    for start, end in ((closed, opened), (opened, closed)):
+        found = front_normal(start, end, np.array([0.0, 0.2, 1.0]))
+        assert found is not None
+        normal, disagreement = found
+        assert np.degrees(np.arccos(min(1.0, normal[2]))) < 1.0 and disagreement < 2.0
+    # the views of the open state are not read (they see too little of the front), the closed one's are
+    views = np.arange(len(closed)) % 2
+    assert front_normal(closed, opened, np.array([0.0, 0.0, 1.0]), start_views=views,
+                        end_views=np.arange(len(opened)) % 3) is not None
+    assert front_normal(closed, _open_drawer(rng, 0), np.array([0.0, 0.0, 1.0])) is None     # no front
+    assert front_normal(closed, _open_drawer(rng, 300), np.array([0.0, 0.0, 1.0])) is None   # 12 %: too little
+
+
+def test_a_face_that_kept_its_normal_seeds_a_slide_by_the_face_shift():
+    """All of a drawer's seed motions can turn (its front laid onto its box's bottom); a face that
+    kept its normal did not turn, so it seeds a slide along the normal by how far the face moved
+    (not by the centroids', which the open box drags back); a turned face seeds none."""
+    from sparseart.joints.candidates import face_slide_seed
+
+    rng = np.random.default_rng(4)
+    closed, opened = _face(rng), _open_drawer(rng, 800)
+    seed = face_slide_seed(closed, opened)
+    assert seed is not None and np.allclose(seed[:3, :3], np.eye(3))
+    assert np.allclose(seed[:3, 3], [0.0, 0.0, 0.2], atol=0.01)
+    assert (opened.mean(axis=0) - closed.mean(axis=0))[2] < 0.15          # what the centroids say
+    back = face_slide_seed(opened, closed)
+    assert back is not None and np.allclose(back[:3, 3], [0.0, 0.0, -0.2], atol=0.01)
+    turned = _face(rng) @ Rotation.from_euler("x", 40.0, degrees=True).as_matrix().T + np.array([0.0, 0.0, 0.1])
+    assert face_slide_seed(closed, turned) is None
 
 
 def test_a_slide_tilted_within_its_face_is_taken_along_the_face_normal():
