@@ -533,21 +533,32 @@ def _half_turn(candidate: JointEstimate) -> bool:
     return candidate.type == "revolute" and np.degrees(abs(candidate.angle or 0.0)) > HALF_TURN_DEG
 
 
-TIE_BREAK_RESIDUAL_RATIO = 1.25  # revolute fits within this residual ratio of the best go to the attachment tie-break
+TIE_BREAK_RESIDUAL_RATIO = 1.25  # revolute fits within this residual ratio of the best go to the attachment tie-break,
+TIE_BREAK_BRANCH_DEG = 20.0      # ... and those within COMPARABLE_RESIDUAL_RATIO that turn this much more or less
+                                 # than the best (another branch: a slab's mirror turn)
 
 
 def choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
                 static_points: np.ndarray | None) -> JointEstimate:
-    """Among fits from different seeds, keep those whose residual is within
-    ``TIE_BREAK_RESIDUAL_RATIO`` of the best. If the best is revolute and several such revolute
-    fits remain, the one whose axis lies nearest the static part wins (a hinge is attached to its
-    parent); otherwise the lowest residual. The ratio: a slab's hinge turn and its mirror about
-    the slab's mid-line fit alike (real laptop: 1.01-1.07), while a fit 35 % worse is not a tie
-    (realistic stapler: 0.042 against 0.031, the worse axis nearer the base and 25 deg off, the
-    better 3.9 deg). O(C (25 log S)) for C candidates."""
+    """Among fits from different seeds, keep the revolute ones that explain the data alike: within
+    ``TIE_BREAK_RESIDUAL_RATIO`` of the best residual, or within ``COMPARABLE_RESIDUAL_RATIO``
+    when they turn at least ``TIE_BREAK_BRANCH_DEG`` more or less than the best (another branch
+    of the same ambiguity: a slab's turn by theta and its mirror by 180 deg - theta about the
+    slab's mid-line, whose residuals say little -- a robot-shaped microwave door's 36.7 deg turn
+    at 1.33 x its 143.9 deg mirror). If the best is revolute and several remain, the one whose
+    axis lies nearest the static part wins (a hinge is attached to its parent); otherwise the
+    lowest residual. Within one branch the residual decides beyond 1.25 x: a realistic stapler's
+    rival turning as far (92.4 against 88.9 deg) at 1.35 x, its axis nearer the base, was 25.6
+    deg off where the better fit is 3.9 deg. O(C (25 log S)) for C candidates."""
     best = min(candidates, key=lambda c: c.residual)
-    comparable = [c for c in candidates if c.residual <= TIE_BREAK_RESIDUAL_RATIO * best.residual
-                  and c.type == "revolute"]
+
+    def alike(c: JointEstimate) -> bool:
+        if c.residual <= TIE_BREAK_RESIDUAL_RATIO * best.residual:
+            return True
+        other_branch = abs(np.degrees(abs(c.angle or 0.0) - abs(best.angle or 0.0))) >= TIE_BREAK_BRANCH_DEG
+        return other_branch and c.residual <= COMPARABLE_RESIDUAL_RATIO * best.residual
+
+    comparable = [c for c in candidates if c.type == "revolute" and alike(c)]
     if best.type != "revolute" or len(comparable) < 2 or static_points is None:
         return best
     static_tree = cKDTree(static_points)
