@@ -137,16 +137,11 @@ def test_tied_hinge_rivals_widen_the_axis_sigma_and_far_ones_do_not():
     widen_for_tied_hinges(chosen, chosen.diagnostics["tied_hinge_deg"])
     assert chosen.uncertainty["axis_deg"] == pytest.approx(9.0) and "rival hinge axis" in chosen.warnings[-1]
 
-    # a rival on the wall turning as far that fits 35 % worse is no tie: the better fit stays;
-    # the same rival as a mirror branch (turning 120 deg against 60) is one
+    # a rival on the wall that fits 35 % worse still goes to the tie-break (within 1.5 x): the
+    # attachment wins; at 1.6 x it does not
     better = hinge(0.0310, [0, 1, 0], [0.6, 0.0, 0.0])
-    assert choose_fit([better, hinge(0.0420, [0, 0, 1], [0.0, 0.0, 0.0])], part, static) is better
-    assert choose_fit([better, on_wall := hinge(0.0330, [0, 0, 1], [0.0, 0.0, 0.0])], part, static) is on_wall
-    mirror = hinge(0.0420, [0, 0, 1], [0.0, 0.0, 0.0])
-    mirror.angle = np.radians(120.0)
-    assert choose_fit([better, mirror], part, static) is mirror
-    mirror.residual = 0.0500                                       # 1.6 x: not even as a mirror
-    assert choose_fit([better, mirror], part, static) is better
+    assert choose_fit([better, on_wall := hinge(0.0420, [0, 0, 1], [0.0, 0.0, 0.0])], part, static) is on_wall
+    assert choose_fit([better, hinge(0.0500, [0, 0, 1], [0.0, 0.0, 0.0])], part, static) is better
 
     alone = hinge(0.0101, [0, 0, 1], [0.0, 0.0, 0.0])
     chosen = choose_fit([alone, hinge(0.0099, [0, 1, 0], [0.6, 0.0, 0.0])], part, static)
