@@ -122,11 +122,11 @@ def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndar
             errors.append(error)
     if not candidates:
         raise errors[0]
-    kept_face = (face_slide_seed(part_start, part_end, config.seed if config else 0, *views)
-                 if joint_type != "revolute" and all(c.type == "revolute" for c in candidates) else None)
-    if kept_face is not None:
+    face_slide = (face_slide_seed(part_start, part_end, config.seed if config else 0, *views)
+                  if joint_type != "revolute" and all(c.type == "revolute" for c in candidates) else None)
+    if face_slide is not None:
         try:
-            candidates.append(attempt("prismatic", kept_face))
+            candidates.append(attempt("prismatic", face_slide))
         except ValueError as error:
             errors.append(error)
     best = min(candidates, key=lambda c: c.residual)
@@ -375,7 +375,6 @@ def facing_plane(points: np.ndarray, normal: np.ndarray, rng: np.random.Generato
     if spread[0][1] < FRONT_FLAT_RATIO * spread[0][0] or axis_angle_deg(found, normal) > FRONT_FACING_DEG:
         return None
     return found
-
 
 
 def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: np.ndarray, fit_options: dict,
