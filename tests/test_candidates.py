@@ -28,6 +28,28 @@ def test_revolute_candidates_that_are_slides_in_disguise_give_way_to_a_slide():
     assert plausible_fits([flap, frame_turn], config) == [flap, frame_turn]     # no slide to give way to
 
 
+def test_a_turn_about_an_axis_clear_of_the_part_gives_way_to_a_slide():
+    """A hinge touches its part: a significant turn about a near pivot whose axis line passes
+    two part radii clear of the part (a drawer front's "flap" fitted under depth warps) goes
+    when a slide is among the candidates; the same turn about an axis along the part's edge
+    stays, and so does the detached one with no slide to give way to."""
+    rng = np.random.default_rng(3)
+    front = np.column_stack([rng.uniform(-0.3, 0.3, 2000), rng.uniform(-0.2, 0.2, 2000), np.zeros(2000)])
+    radius = np.sqrt(np.mean(np.sum(front ** 2, axis=1)))
+    slide = _estimate("prismatic", 0.026)
+    edge = _estimate("revolute", 0.024, revolute_angle_z=8.0, revolute_pivot_factor=1.6)
+    edge.origin = np.array([0.0, 0.2, 0.0])                  # axis x along the front's top edge
+    detached = _estimate("revolute", 0.024, revolute_angle_z=8.0, revolute_pivot_factor=3.8)
+    detached.origin = np.array([0.0, 0.2, 2.0 * radius])     # parallel, 2 radii in front of it
+    config = FitConfig()
+    assert plausible_fits([slide, edge, detached], config, front) == [slide, edge]
+    assert plausible_fits([edge, detached], config, front) == [edge, detached]
+    # unit-free: the same scene in millimetres keeps the same fits
+    for fit in (edge, detached):
+        fit.origin = fit.origin * 1000.0
+    assert plausible_fits([slide, edge, detached], config, front * 1000.0) == [slide, edge]
+
+
 def test_a_half_turn_gives_way_to_a_comparable_smaller_motion():
     slide = _estimate("prismatic", 0.0125)
     spin = _estimate("revolute", 0.0124, angle_deg=179.8)
