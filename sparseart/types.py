@@ -155,6 +155,12 @@ class LabelledCloud:
     def __len__(self) -> int:
         return int(self.points.shape[0])
 
+    def mask_ids(self) -> np.ndarray:
+        """(N,) int64 mask id of each point (0 where the point has no segment from a mask). O(N)."""
+        segments, inverse = np.unique(self.segment, return_inverse=True)
+        lookup = np.array([self.segment_source.get(int(s), (0, 0))[1] for s in segments], dtype=np.int64)
+        return lookup[inverse.reshape(-1)]
+
     def subset(self, keep: np.ndarray) -> "LabelledCloud":
         """A new cloud with only the points where ``keep`` (bool (N,) or index array) selects."""
         return LabelledCloud(

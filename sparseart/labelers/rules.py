@@ -5,7 +5,9 @@ Steps (both clouds in one frame):
 0. Both states are voxel-downsampled to a resolution set by the scene's extent
    (``voxel_divisions`` voxels across it); every decision below is made on these work clouds and
    carried back to every point (per segment with masks, per voxel without).
-1. Segments: mask segments when the scene has masks; otherwise one motion-based split (points of
+1. Segments: mask segments when the scene has masks (a mask that merges two parts or splits one
+   in one image is put right by the state's other images when the ids name parts across images:
+   :mod:`.mask_repair`); otherwise one motion-based split (points of
    one state farther than a radius from the other state's cloud are "moving", clustered into
    connected pieces; the rest is static). With the other state's depth views, a far point whose
    place those views could not see (something nearer covers it) is unseen, not moved: it has no
@@ -42,6 +44,7 @@ from sparseart.geometry.clouds import median_spacing, normals_with_variation, ra
 from sparseart.geometry.sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 from .consistency import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
+from .mask_repair import repair_merged_masks
 from .correspondence import (AMBIGUITY_MARGIN, Group, PairContext, apply, assign, distinct_by_masks,
                              mask_agreement, motion_size, named_mask_ids, pair_score, prefer_small_turns, score_pairs)
 
@@ -150,14 +153,19 @@ class RuleBasedLabeler:
         if posed is None:
             posed = bool(aligned and scene is not None and scene.posed)
         rng = np.random.default_rng(config.seed)
+        warnings: list[str] = []
+        has_masks = bool(np.any(start.segment >= 0) and np.any(end.segment >= 0))
+        if has_masks:   # merged / split masks put right by the state's other views (module doc, step 1)
+            ids, repair_rng = named_mask_ids(start, end), np.random.default_rng(config.seed + 7)
+            start, start_notes = repair_merged_masks(start, ids, repair_rng)
+            end, end_notes = repair_merged_masks(end, ids, repair_rng)
+            warnings.extend(start_notes + end_notes)
         voxel = _voxel_size(start, end, config, rng)
         work_start, start_map = _downsample(start, voxel)
         work_end, end_map = _downsample(end, voxel)
         spacing = max(median_spacing(work_start.points, sample=4000, rng=rng),
                       median_spacing(work_end.points, sample=4000, rng=rng))
         radius = config.inlier_radius_spacings * spacing
-        warnings: list[str] = []
-        has_masks = bool(np.any(start.segment >= 0) and np.any(end.segment >= 0))
         if has_masks:
             start_segments, end_segments = work_start.segment, work_end.segment
         else:
