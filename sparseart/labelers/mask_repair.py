@@ -26,6 +26,7 @@ from ..types import LabelledCloud
 
 CLAIM_SHARE = 0.25           # of a segment's covered points, the share another id must claim
 MIN_CLAIMED_POINTS = 30      # ... and at least this many points
+MIN_CLAIMED_SHARE = 0.01     # ... and this share of the state's named points (a frayed border is less)
 CLAIM_RADIUS_SPACINGS = 6.0  # another frame's point this near covers a point (views warp by ~1-2 %)
 NO_CLAIM = -1                # fewer than two other frames agree on the point's id
 SPLIT_VOTE = -2              # no id has a majority of the frames covering it
@@ -49,6 +50,7 @@ def repair_merged_masks(cloud: LabelledCloud, named_ids: frozenset[int],
         return cloud, []
     radius = CLAIM_RADIUS_SPACINGS * median_spacing(cloud.points[named], sample=4000, rng=rng)
     claimed = _claims(cloud, mask_id, named, frames, radius)
+    floor = max(MIN_CLAIMED_POINTS, MIN_CLAIMED_SHARE * int(named.sum()))
     segment = cloud.segment.copy()
     source = dict(cloud.segment_source)
     next_segment = int(segment.max()) + 1
@@ -62,7 +64,7 @@ def repair_merged_masks(cloud: LabelledCloud, named_ids: frozenset[int],
             continue
         ids, counts = np.unique(votes[(votes >= 0) & (votes != own)], return_counts=True)
         for other, count in zip(ids.tolist(), counts.tolist()):
-            if count < MIN_CLAIMED_POINTS or count < CLAIM_SHARE * covered.sum():
+            if count < floor or count < CLAIM_SHARE * covered.sum():
                 continue
             segment[members[votes == other]] = next_segment
             source[next_segment] = (source[seg][0], other)
