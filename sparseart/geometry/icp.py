@@ -9,7 +9,8 @@ the highest symmetric inlier fraction; among near-ties the smallest rotation win
 rarely exceed 180 deg and symmetric parts such as drawer fronts create flip ambiguities).
 
 Reproducible: subsamples come from ``numpy.random.default_rng(seed)``, open3d's RANSAC from its
-seeded generator, and every open3d registration call runs on one thread
+seeded generator held by one call at a time (:func:`sparseart.geometry.o3d.seeded`: the
+generator is process-wide), and every open3d registration call runs on one thread
 (:func:`sparseart.geometry.o3d.serial`), so its parallel sums cannot change the last bits from run
 to run: the same input gives the same transform, bit for bit. The hypotheses are refined side
 by side in threads (:func:`sparseart.parallel.in_parallel`): each refinement is a pure function
@@ -24,7 +25,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sparseart.geometry.clouds import median_spacing
-from sparseart.geometry.o3d import open3d, serial
+from sparseart.geometry.o3d import open3d, seeded, serial
 from sparseart.geometry.sampling import random_subset
 from sparseart.geometry.transforms import apply_transform, make_transform, rotation_angle
 from sparseart.parallel import in_parallel
@@ -82,12 +83,12 @@ def _o3d_cloud(points: np.ndarray, radius: float | None = None):
 
 
 def _fpfh_hypothesis(source_cloud, target_cloud, voxel: float, seed: int) -> np.ndarray | None:
-    """open3d FPFH + RANSAC on one thread with a seeded generator (reproducible); None when it fails.
+    """open3d FPFH + RANSAC on one thread with a seeded generator, one call at a time
+    (:func:`~sparseart.geometry.o3d.seeded`: reproducible from threads too); None when it fails.
     Roughly O(N log N) for features + RANSAC."""
-    with serial() as o3d:
+    with seeded(seed) as o3d:
         reg = o3d.pipelines.registration
         try:
-            o3d.utility.random.seed(seed)
             param = o3d.geometry.KDTreeSearchParamHybrid(radius=5.0 * voxel, max_nn=100)
             source_feature = reg.compute_fpfh_feature(source_cloud, param)
             target_feature = reg.compute_fpfh_feature(target_cloud, param)
@@ -97,10 +98,11 @@ def _fpfh_hypothesis(source_cloud, target_cloud, voxel: float, seed: int) -> np.
                 [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9),
                  reg.CorrespondenceCheckerBasedOnDistance(1.5 * voxel)],
                 reg.RANSACConvergenceCriteria(5000, 0.999))
+            transform = np.array(result.transformation, dtype=np.float64)
+            matched = len(result.correspondence_set)
         except RuntimeError:
             return None
-    transform = np.asarray(result.transformation, dtype=np.float64)
-    return transform if np.all(np.isfinite(transform)) and len(result.correspondence_set) >= 3 else None
+    return transform if np.all(np.isfinite(transform)) and matched >= 3 else None
 
 
 def tukey_icp(source_cloud, target_cloud, init: np.ndarray, distances: tuple[float, ...], *,
