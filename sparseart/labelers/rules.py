@@ -44,9 +44,9 @@ from sparseart.geometry.clouds import median_spacing, normals_with_variation, ra
 from sparseart.geometry.sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 from .consistency import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
-from .mask_repair import repair_merged_masks
 from .correspondence import (AMBIGUITY_MARGIN, Group, PairContext, apply, assign, distinct_by_masks,
                              mask_agreement, motion_size, named_mask_ids, pair_score, prefer_small_turns, score_pairs)
+from .mask_repair import repair_merged_masks
 
 STATIC_ANGLE_DEG = 1.0          # a matched pair moving less than this and ...
 STATIC_SHIFT_RADII = 1.5        # ... less than this many inlier radii is static
