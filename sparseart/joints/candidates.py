@@ -507,22 +507,27 @@ def plausible_fits(candidates: list[JointEstimate], config: FitConfig,
     the slide's residual, 2.0 and 2.9 radii away). O(C N)."""
     if not any(c.type == "prismatic" for c in candidates):
         return candidates
+    radius = None if start_points is None else rms_radius(start_points)
     kept = [c for c in candidates if c.type != "revolute"
             or (c.diagnostics.get("revolute_angle_z", np.inf) >= config.angle_z
                 and c.diagnostics.get("revolute_pivot_factor", 0.0) <= config.far_pivot_factor
-                and (start_points is None or hinge_reach(c, start_points) <= DETACHED_HINGE_RADII))]
+                and (radius is None or hinge_reach(c, start_points, radius) <= DETACHED_HINGE_RADII))]
     return kept
 
 
 DETACHED_HINGE_RADII = 1.0   # a revolute axis this many part radii clear of the part is not its hinge
 
 
-def hinge_reach(candidate: JointEstimate, points: np.ndarray) -> float:
+def rms_radius(points: np.ndarray) -> float:
+    """RMS distance of (N, 3) ``points`` to their centroid (their units). O(N)."""
+    return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
+
+
+def hinge_reach(candidate: JointEstimate, points: np.ndarray, radius: float) -> float:
     """Distance from the candidate's axis line to the nearest of ``points`` ((N, 3) float64, the
-    candidate's frame), in units of the points' RMS radius about their centroid (unit-free). O(N)."""
+    candidate's frame), in units of ``radius`` (the points' :func:`rms_radius`; unit-free). O(N)."""
     offsets = points - candidate.origin
     across = offsets - np.outer(offsets @ candidate.axis, candidate.axis)
-    radius = np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1)))
     return float(np.sqrt(np.min(np.sum(across ** 2, axis=1))) / max(radius, 1e-12))
 
 

@@ -84,14 +84,10 @@ def _claims(cloud: LabelledCloud, mask_id: np.ndarray, named: np.ndarray, frames
     majority, ``NO_CLAIM`` when fewer than two frames agree on any. O(F^2 N + F N log N) for F
     frames."""
     votes = np.full((len(frames), len(cloud)), -1, dtype=np.int64)
-    trees = {}
-    for k, frame in enumerate(frames):
+    for k, frame in enumerate(frames):     # frame k's vote on every named point of the other frames
         members = np.flatnonzero(named & (cloud.frame_index == frame))
-        trees[k] = (cKDTree(cloud.points[members]), members)
-    for k, frame in enumerate(frames):
         query = np.flatnonzero(named & (cloud.frame_index != frame))
-        tree, members = trees[k]
-        distance, index = tree.query(cloud.points[query], k=1, distance_upper_bound=radius)
+        distance, index = cKDTree(cloud.points[members]).query(cloud.points[query], k=1, distance_upper_bound=radius)
         hit = distance < radius
         votes[k, query[hit]] = mask_id[members[index[hit]]]
     covering = (votes >= 0).sum(axis=0)
