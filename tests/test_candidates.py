@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sparseart.joints.candidates import mirror_seed, plausible_fits, without_half_turns
+from sparseart.joints.candidates import detached_slide_seeds, mirror_seed, plausible_fits, without_half_turns
 from sparseart.joints.config import FitConfig
 from sparseart.types import JointEstimate
 
@@ -95,6 +95,34 @@ def test_the_mirror_of_a_half_turned_box_is_its_slide():
 
 
 PANE = [0.3, 0.2, 0.01]   # half-extents of a 0.6 x 0.4 x 0.02 window sash
+
+
+def test_a_part_whose_every_hinge_is_detached_gets_slide_seeds_along_the_body():
+    """Every fit a turn about an axis clear of the part (a thin rack's few points registered
+    with a turn): slide seeds are offered -- the centroid's shift and that length along each
+    axis of the static body, pointing with the shift. One hinge touching the part, or a slide
+    already among the fits, and nothing is offered."""
+    rng = np.random.default_rng(5)
+    rack = np.column_stack([rng.uniform(-0.3, 0.3, 800), np.zeros(800), rng.uniform(-0.2, 0.2, 800)])
+    shift = np.array([0.0, 0.0, 0.25])
+    radius = np.sqrt(np.mean(np.sum(rack ** 2, axis=1)))
+    body = np.column_stack([rng.uniform(-0.5, 0.5, 3000), rng.uniform(-0.6, 0.6, 3000), rng.uniform(-0.4, 0.4, 3000)])
+    detached = _estimate("revolute", 0.05, revolute_angle_z=9.0, revolute_pivot_factor=2.0)
+    detached.origin = np.array([0.0, 2.0 * radius, 0.0])     # axis x, two radii above the rack
+    seeds = detached_slide_seeds([detached], rack, rack + shift, body)
+    assert len(seeds) == 4
+    assert np.allclose(seeds[0][:3, 3], shift)
+    along = [seed[:3, 3] for seed in seeds[1:]]
+    assert all(np.isclose(np.linalg.norm(t), 0.25) and t @ shift >= 0 for t in along)
+    assert max(abs(t @ shift) for t in along) > 0.99 * 0.25 * 0.25     # the body's z axis is the shift's
+    touching = _estimate("revolute", 0.05, revolute_angle_z=9.0, revolute_pivot_factor=1.0)
+    touching.origin = np.array([0.0, 0.0, 0.2])              # axis x along the rack's edge
+    assert detached_slide_seeds([detached, touching], rack, rack + shift, body) == []
+    assert detached_slide_seeds([detached, _estimate("prismatic", 0.05)], rack, rack + shift, body) == []
+    # unit-free: the same scene in millimetres gives the same seeds, scaled
+    detached.origin = detached.origin * 1000.0
+    seeds_mm = detached_slide_seeds([detached], rack * 1000.0, (rack + shift) * 1000.0, body * 1000.0)
+    assert np.allclose(seeds_mm[0][:3, 3], shift * 1000.0)
 
 
 def _turned_pane(angle_deg: float, pivot_radii: float):

@@ -129,6 +129,12 @@ def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndar
             candidates.append(attempt("prismatic", face_slide))
         except ValueError as error:
             errors.append(error)
+    if joint_type != "revolute" and not any(c.type == "prismatic" for c in candidates):
+        for slide_seed in detached_slide_seeds(candidates, part_start, part_end, static_points):
+            try:
+                candidates.append(attempt("prismatic", slide_seed))
+            except ValueError as error:
+                errors.append(error)
     best = min(candidates, key=lambda c: c.residual)
     mirrored = mirror_seed(best, part_start)
     if mirrored is not None and joint_type != "prismatic":
@@ -516,6 +522,38 @@ def plausible_fits(candidates: list[JointEstimate], config: FitConfig,
 
 
 DETACHED_HINGE_RADII = 1.0   # a revolute axis this many part radii clear of the part is not its hinge
+
+
+def detached_slide_seeds(candidates: list[JointEstimate], part_start: np.ndarray, part_end: np.ndarray,
+                         static_points: np.ndarray | None) -> list[np.ndarray]:
+    """(4, 4) start->end slide seeds for a part whose every fit is a hinge that does not touch it.
+
+    A hinge joins a part to its parent, so its axis passes through or along the part; when every
+    candidate's axis passes more than ``DETACHED_HINGE_RADII`` part radii clear of the part's start
+    points (:func:`hinge_reach`), the turns are a slide's motion in disguise (a thin part's few
+    points registered with a turn). The seeds: the shift of the part's centroid, and that shift's
+    length along each principal axis of the static part (:func:`static_axis_seeds`: slides follow
+    the body's axes). Empty when some candidate touches the part or there is no shift.
+    part_start (N, 3), part_end (M, 3), static_points (S, 3) float64, one frame. O(C N + S)."""
+    if not candidates or any(c.type != "revolute" for c in candidates):
+        return []
+    radius = rms_radius(part_start)
+    if min(hinge_reach(c, part_start, radius) for c in candidates) <= DETACHED_HINGE_RADII:
+        return []
+    shift = part_end.mean(axis=0) - part_start.mean(axis=0)
+    length = float(np.linalg.norm(shift))
+    if not length > 0:
+        return []
+    seed = np.eye(4)
+    seed[:3, 3] = shift
+    seeds = [seed]
+    if static_points is not None and len(static_points) >= 10:
+        centred = static_points - static_points.mean(axis=0)
+        for axis in np.linalg.eigh(centred.T @ centred)[1].T:
+            seed = np.eye(4)
+            seed[:3, 3] = (axis if float(axis @ shift) >= 0 else -axis) * length
+            seeds.append(seed)
+    return seeds
 
 
 def rms_radius(points: np.ndarray) -> float:
