@@ -347,3 +347,27 @@ def test_a_slide_tilted_within_its_face_is_taken_along_the_face_normal():
     turn = _slide([0.0, 0.0, 1.0], 0.2)
     turn.type, turn.distance, turn.angle = "revolute", None, 0.3
     assert along_front_normal(turn, start, end, {}) is turn
+
+
+def test_a_slide_that_does_not_fix_its_direction_takes_its_face_normal_from_farther_off():
+    """A free slide 40 deg off its face's normal is kept while its own sigma says the data fix
+    it (an oblique face, a toaster lever's); the same slide stated +-15 deg (a rival direction
+    fits as well) gives way to the face normal."""
+    from sparseart.joints.candidates import along_front_normal
+    from sparseart.joints.fit import fit_joint
+
+    rng = np.random.default_rng(4)
+    start, end = _face(rng), _face(rng) + np.array([0.0, 0.0, 0.2])
+    normal_residual = fit_joint(start, end, joint_type="prismatic", slide_axis=[0.0, 0.0, 1.0]).residual
+    sure = _slide([0.0, np.sin(np.radians(40.0)), np.cos(np.radians(40.0))], 0.26)
+    sure.residual = 1.05 * normal_residual
+    assert along_front_normal(sure, start, end, {}) is sure
+    unsure = _slide([0.0, np.sin(np.radians(40.0)), np.cos(np.radians(40.0))], 0.26)
+    unsure.residual, unsure.uncertainty["axis_deg"] = 1.05 * normal_residual, 15.0
+    held = along_front_normal(unsure, start, end, {})
+    assert held is not unsure
+    assert np.degrees(np.arccos(min(1.0, held.axis[2]))) < 1.0
+    assert held.diagnostics["free_slide"]["tilt_deg"] == pytest.approx(40.0, abs=1.0)
+    beyond = _slide([0.0, np.sin(np.radians(70.0)), np.cos(np.radians(70.0))], 0.6)   # slides within the face
+    beyond.residual, beyond.uncertainty["axis_deg"] = 1.05 * normal_residual, 15.0
+    assert along_front_normal(beyond, start, end, {}) is beyond

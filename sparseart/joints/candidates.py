@@ -15,7 +15,7 @@ from sparseart.geometry.sampling import random_subset
 from sparseart.geometry.transforms import axis_angle_deg
 from sparseart.joints.clean import estimate_normals
 from sparseart.joints.fit import FitConfig, fit_joint
-from sparseart.joints.reliability import HALF_TURN_DEG
+from sparseart.joints.reliability import HALF_TURN_DEG, MAX_AXIS_SIGMA_DEG
 from sparseart.joints.uncertainty import frame_misfit
 from sparseart.types import JointEstimate, LabelledCloud, PartLabels, PartResult
 
@@ -247,11 +247,15 @@ FRONT_MIN_TILT_DEG = 2.0        # a free slide this close to the face normal is 
 FRONT_MAX_RESIDUAL_RATIO = 1.2  # the held slide replaces the free one only when its residual is within this ratio
 FRONT_MAX_TILT_DEG = 30.0       # a free slide farther from the face normal than this slides within the face
                                 # (or along an oblique face: a toaster lever's, 35-37 deg, clean renders)
+# A free slide whose own stated axis sigma exceeds MAX_AXIS_SIGMA_DEG (a rival slide fits as well)
+# does not fix its direction: its face normal is then taken up to these looser limits.
+UNSURE_MAX_TILT_DEG = 60.0
+UNSURE_STATES_AGREE_DEG = 10.0
 
 
 def front_normal(part_start: np.ndarray, part_end: np.ndarray, direction: np.ndarray, seed: int = 0,
-                 start_views: np.ndarray | None = None,
-                 end_views: np.ndarray | None = None) -> tuple[np.ndarray, float] | None:
+                 start_views: np.ndarray | None = None, end_views: np.ndarray | None = None,
+                 agree_deg: float = FRONT_STATES_AGREE_DEG) -> tuple[np.ndarray, float] | None:
     """The normal of a part's face, when both states show it alike: (unit normal (3,) oriented
     along ``direction``, the widest angle in degrees between the normals read), or None.
 
@@ -264,7 +268,7 @@ def front_normal(part_start: np.ndarray, part_end: np.ndarray, direction: np.nda
     state's points, 24 % of the open one's, whose dominant plane is the box's bottom), the other
     state's face is read from its points facing like it (:func:`facing_plane`), fused: its views
     see too little of the face (10.8 deg off in one view of that drawer). All the normals read (a
-    slide leaves the face's normal unchanged) must agree within ``FRONT_STATES_AGREE_DEG``; the
+    slide leaves the face's normal unchanged) must agree within ``agree_deg``; the
     answer is the two states' mean. Why the views:
     fused from views whose depth each carries its own smooth warp, a face is tilted by the fusion
     (measured on a realistic render of a desk drawer: its true points read 3.5 and 7.8 deg in two
@@ -305,7 +309,7 @@ def front_normal(part_start: np.ndarray, part_end: np.ndarray, direction: np.nda
                 read.append(normal)
     read = [n if float(n @ states[0]) >= 0 else -n for n in read]    # one orientation before comparing
     disagreement = max(axis_angle_deg(a, b) for k, a in enumerate(read) for b in read[k + 1:])
-    if disagreement > FRONT_STATES_AGREE_DEG:
+    if disagreement > agree_deg:
         return None
     mean = read[0] + read[1]
     mean /= np.linalg.norm(mean)
@@ -405,6 +409,11 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
     renders: the drawers and a dishwasher rack the face normal put right held at 0.98-1.13 x the
     free residual; a table drawer whose labelled points carry a strip of carcass, so that the
     face read 11-13 deg off in both states, at 1.86 x -- it went 6.3 -> 12.0 deg without this test).
+    A free slide whose own axis sigma is above ``MAX_AXIS_SIGMA_DEG`` (a rival slide direction
+    fits as well: :func:`widen_for_rival_slides`) does not fix its direction, so the face is read
+    up to ``UNSURE_STATES_AGREE_DEG`` of disagreement and taken up to ``UNSURE_MAX_TILT_DEG``
+    (measured on a realistic storage drawer: free slide 35 deg off with a rival 14.6 deg away at
+    +1 %, the face 33.9 deg from it with its normals 6.7 deg apart; held 6.5 deg off).
     The held fit's axis sigma gains the normals' disagreement (half the widest angle between
     them, in quadrature), and ``diagnostics["free_slide"]`` keeps the free fit's axis and tilt.
     ``fit_options``: the keyword arguments of the free fit (colours, config, confidences, frame
@@ -412,12 +421,14 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
     O(one prismatic fit + :func:`front_normal`)."""
     if joint.type != "prismatic" or not joint.distance:
         return joint
-    front = front_normal(part_start, part_end, joint.axis, seed, start_views, end_views)
+    unsure = float(joint.uncertainty.get("axis_deg", 0.0)) > MAX_AXIS_SIGMA_DEG
+    front = front_normal(part_start, part_end, joint.axis, seed, start_views, end_views,
+                         UNSURE_STATES_AGREE_DEG if unsure else FRONT_STATES_AGREE_DEG)
     if front is None:
         return joint
     normal, disagreement = front
     tilt = axis_angle_deg(normal, joint.axis)
-    if tilt < FRONT_MIN_TILT_DEG or tilt > FRONT_MAX_TILT_DEG:
+    if tilt < FRONT_MIN_TILT_DEG or tilt > (UNSURE_MAX_TILT_DEG if unsure else FRONT_MAX_TILT_DEG):
         return joint
     seed_motion = np.eye(4)
     seed_motion[:3, 3] = normal * float(joint.distance) * float(np.cos(np.radians(tilt)))
