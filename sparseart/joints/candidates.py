@@ -215,18 +215,28 @@ def static_axis_seeds(joint: JointEstimate, static_points: np.ndarray | None) ->
     static_points (S, 3) float64, scene frame. O(S) for the 3x3 scatter; empty unless the fit is
     prismatic and the static part has >= 10 points.
     """
-    if joint.type != "prismatic" or static_points is None or len(static_points) < 10 or not joint.distance:
+    if joint.type != "prismatic" or not joint.distance:
+        return []
+    return body_axis_slides(static_points, joint.axis * float(joint.distance), abs(float(joint.distance)),
+                            skip_near=joint.axis)
+
+
+def body_axis_slides(static_points: np.ndarray | None, direction: np.ndarray, length: float,
+                     skip_near: np.ndarray | None = None) -> list[np.ndarray]:
+    """(4, 4) translations by ``length`` along each principal axis of the static part
+    (``static_points`` (S, 3) float64), each pointing with ``direction`` (3,); axes within
+    ``STATIC_AXIS_SEED_MIN_DEG`` of ``skip_near`` are left out. Empty without >= 10 static
+    points. O(S) for the 3x3 scatter."""
+    if static_points is None or len(static_points) < 10:
         return []
     centred = static_points - static_points.mean(axis=0)
-    _, axes = np.linalg.eigh(centred.T @ centred)
-    slide = joint.axis * float(joint.distance)
     seeds = []
-    for axis in axes.T:
-        axis = axis if float(axis @ slide) >= 0 else -axis
-        if axis_angle_deg(axis, joint.axis) < STATIC_AXIS_SEED_MIN_DEG:
+    for axis in np.linalg.eigh(centred.T @ centred)[1].T:
+        axis = axis if float(axis @ direction) >= 0 else -axis
+        if skip_near is not None and axis_angle_deg(axis, skip_near) < STATIC_AXIS_SEED_MIN_DEG:
             continue
         seed = np.eye(4)
-        seed[:3, 3] = axis * abs(float(joint.distance))
+        seed[:3, 3] = axis * length
         seeds.append(seed)
     return seeds
 
@@ -543,7 +553,7 @@ def detached_slide_seeds(candidates: list[JointEstimate], part_start: np.ndarray
     candidate's axis passes more than ``DETACHED_HINGE_RADII`` part radii clear of the part's start
     points (:func:`hinge_reach`), the turns are a slide's motion in disguise (a thin part's few
     points registered with a turn). The seeds: the shift of the part's centroid, and that shift's
-    length along each principal axis of the static part (:func:`static_axis_seeds`: slides follow
+    length along each principal axis of the static part (:func:`body_axis_slides`: slides follow
     the body's axes). Empty when some candidate touches the part or there is no shift.
     part_start (N, 3), part_end (M, 3), static_points (S, 3) float64, one frame. O(C N + S)."""
     if not candidates or any(c.type != "revolute" for c in candidates):
@@ -557,14 +567,7 @@ def detached_slide_seeds(candidates: list[JointEstimate], part_start: np.ndarray
         return []
     seed = np.eye(4)
     seed[:3, 3] = shift
-    seeds = [seed]
-    if static_points is not None and len(static_points) >= 10:
-        centred = static_points - static_points.mean(axis=0)
-        for axis in np.linalg.eigh(centred.T @ centred)[1].T:
-            seed = np.eye(4)
-            seed[:3, 3] = (axis if float(axis @ shift) >= 0 else -axis) * length
-            seeds.append(seed)
-    return seeds
+    return [seed, *body_axis_slides(static_points, shift, length)]
 
 
 def rms_radius(points: np.ndarray) -> float:
