@@ -161,3 +161,33 @@ def test_pipeline_matches_a_per_state_warp_of_a_robot_view(warped_robot_scene):
     entry = result.registration["depth_ratio"][0]
     assert entry["applied"] and entry["end"] == "end/rgb/000.png"
     assert any("same camera" in w for w in result.warnings)
+
+
+def _unposed(state: str, depth: np.ndarray, rgb: np.ndarray) -> tuple[Frame, Pointmap]:
+    """A view without a pose (unposed RGB-D): its pointmap in its own camera frame."""
+    frame = Frame(state, 0, Path(f"{state}/rgb/000.png"), rgb, depth=depth, camera=Camera(K, W, H))
+    v, u = np.mgrid[0:H, 0:W]
+    points = np.stack([(u - K[0, 2]) / K[0, 0] * depth, (v - K[1, 2]) / K[1, 1] * depth, depth], axis=-1)
+    return frame, Pointmap(state, 0, H, W, points.reshape(-1, 3), depth.reshape(-1) > 0, np.ones(H * W))
+
+
+def test_an_unposed_view_whose_camera_did_not_move_gets_its_depth_matched():
+    """Unposed: the still test pairs end view 0 with start view 0 (same picture, depth within
+    the still tolerance), and the end depth and points (about the camera's own origin) are matched
+    to the start's on the static scene; a camera moved between the states is not paired."""
+    from sparseart.align.still import still_pairs
+
+    rng = np.random.default_rng(4)
+    texture = cv2.resize(rng.integers(0, 255, (H // 8, W // 8, 3), dtype=np.uint8), (W, H),
+                         interpolation=cv2.INTER_NEAREST)
+    start, start_map = _unposed("start", _room(rng), texture)
+    end_depth, moved = _moved(_room(rng))
+    end, end_map = _unposed("end", end_depth * _warp(amplitude=0.008), texture)
+    pairs = still_pairs([start], [end], [start_map], [end_map])
+    assert pairs == {0: 0}
+    frames, maps, report = match_end_depth([start], [end], [start_map], [end_map], pairs=pairs)
+    assert len(report) == 1 and report[0].applied
+    assert np.median(np.abs(np.log(frames[0].depth / start.depth)[~moved])) < 0.002
+    assert np.allclose(maps[0].points, _unposed("end", frames[0].depth, texture)[1].points, atol=1e-9)
+    shifted, shifted_map = _unposed("end", end.depth, np.roll(texture, 12, axis=1))    # the camera moved
+    assert still_pairs([start], [shifted], [start_map], [shifted_map]) == {}

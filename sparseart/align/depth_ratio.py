@@ -1,4 +1,5 @@
-"""Depth of the two states made to agree where the camera did not move (posed scenes).
+"""Depth of the two states made to agree where the camera did not move (posed scenes, and
+unposed views whose camera the still test finds unmoved: :func:`sparseart.align.still.still_pairs`).
 
 A robot's head camera sees both states from one pose, but the two depth maps need not agree on
 the static scene: a reconstructor run once per state warps and scales each output on its own, and
@@ -9,7 +10,8 @@ masks) found 38 % of the joints against 62 % without it, and 57 % with this corr
 
 The static scene fills most pixels, so the ratio of the two depths at the same pixel is, on most
 pixels, that smooth relative warp; the moving part, a hand and revealed surfaces are outliers.
-:func:`match_end_depth` finds every end view whose camera equals a start view's (same K; pose
+:func:`match_end_depth` takes the same-camera pairs it is given (unposed) or finds every end view
+whose camera equals a start view's (same K; pose
 within ``SAME_POSE_DEG`` and ``SAME_POSE_SHARE`` of the depth), takes ``log(z_end / z_start)`` as
 medians over small image blocks (a block median is several times less noisy than a pixel, so a
 sensor's per-pixel noise does not hide the warp nor fake one), fits them with a smooth tensor
@@ -200,20 +202,26 @@ def fit_log_ratio(depth_start: np.ndarray, depth_end: np.ndarray) -> tuple[np.nd
 
 
 def _scaled_pointmap(pointmap: Pointmap, frame: Frame, factor: np.ndarray) -> Pointmap:
-    """Every point moved along its camera ray by ``factor`` (H, W) of its depth."""
-    centre = frame.camera.cam_to_world[:3, 3]
+    """Every point moved along its camera ray by ``factor`` (H, W) of its depth; the camera sits
+    at its pose's centre, or at the origin for an unposed view (its pointmap is in its own camera
+    frame)."""
+    pose = frame.camera.cam_to_world if frame.camera is not None else None
+    centre = pose[:3, 3] if pose is not None else np.zeros(3)
     points = centre + (pointmap.points - centre) * factor.reshape(-1, 1)
     depth = pointmap.depth * factor if pointmap.depth is not None else None
     return replace(pointmap, points=points, depth=depth)
 
 
 def match_end_depth(start_frames: list[Frame], end_frames: list[Frame], start_maps: list[Pointmap],
-                    end_maps: list[Pointmap]) -> tuple[list[Frame], list[Pointmap], list[DepthRatio]]:
+                    end_maps: list[Pointmap], pairs: dict[int, int] | None = None,
+                    ) -> tuple[list[Frame], list[Pointmap], list[DepthRatio]]:
     """End views that share a start view's camera, their depth divided by the fitted ratio.
 
-    Frames need depth images and cam_to_world (posed RGB-D); the others pass unchanged. Returns
-    (end frames with corrected depth, end pointmaps moved along their rays, one DepthRatio per
-    same-camera pair). O(V_s V_e + pairs x fit)."""
+    pairs: end view index -> start view index of the pairs known to share one camera (an unposed
+    scene's still cameras, :func:`~sparseart.align.still.still_pairs`); None = found from the
+    frames' poses (posed RGB-D: depth images and cam_to_world). Frames without depth pass
+    unchanged. Returns (end frames with corrected depth, end pointmaps moved along their rays,
+    one DepthRatio per same-camera pair). O(V_s V_e + pairs x fit)."""
     frames, maps, report = list(end_frames), list(end_maps), []
     for e, end in enumerate(end_frames):
         if end.depth is None:
@@ -222,8 +230,13 @@ def match_end_depth(start_frames: list[Frame], end_frames: list[Frame], start_ma
         if valid.size == 0:
             continue
         depth = float(np.median(valid))
-        match = next((s for s, start in enumerate(start_frames)
-                      if start.depth is not None and _same_camera(start, end, depth)), None)
+        if pairs is not None:
+            match = pairs.get(e)
+            if match is not None and start_frames[match].depth is None:
+                match = None
+        else:
+            match = next((s for s, start in enumerate(start_frames)
+                          if start.depth is not None and _same_camera(start, end, depth)), None)
         if match is None:
             continue
         field, numbers = fit_log_ratio(start_frames[match].depth, end.depth)

@@ -109,6 +109,14 @@ def place_through_twins(start: list[Frame], end: list[Frame], start_maps: list[P
     return placed
 
 
+def still_pairs(start: list[Frame], end: list[Frame], start_maps: list[Pointmap],
+                end_maps: list[Pointmap]) -> dict[int, int]:
+    """end view index -> start view index of every view index seen in both states whose camera
+    did not move (:func:`_same_place`). O(V H W log(H W))."""
+    return {k: k for k in range(min(len(start), len(end)))
+            if _same_place(start[k], end[k], start_maps[k], end_maps[k]) is not None}
+
+
 def _same_place(start: Frame, end: Frame, start_map: Pointmap, end_map: Pointmap) -> tuple[float, float] | None:
     """(share, scale) of :func:`pixel_agreement` for two images of one camera (same size and
     intrinsics) taken from one place (share >= ``STILL_MIN_SHARE``); None otherwise. O(H W log(H W))."""
