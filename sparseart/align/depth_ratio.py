@@ -229,15 +229,13 @@ def match_end_depth(start_frames: list[Frame], end_frames: list[Frame], start_ma
         valid = end.depth[end.depth > 0]
         if valid.size == 0:
             continue
-        depth = float(np.median(valid))
         if pairs is not None:
             match = pairs.get(e)
-            if match is not None and start_frames[match].depth is None:
-                match = None
-        else:
+        else:   # the pose gap is judged against the view's median depth
+            depth = float(np.median(valid))
             match = next((s for s, start in enumerate(start_frames)
                           if start.depth is not None and _same_camera(start, end, depth)), None)
-        if match is None:
+        if match is None or start_frames[match].depth is None:
             continue
         field, numbers = fit_log_ratio(start_frames[match].depth, end.depth)
         reason = ""

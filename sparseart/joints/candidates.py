@@ -262,7 +262,8 @@ FRONT_MAX_RESIDUAL_RATIO = 1.2  # the held slide replaces the free one only when
 FRONT_MAX_TILT_DEG = 30.0       # a free slide farther from the face normal than this slides within the face
                                 # (or along an oblique face: a toaster lever's, 35-37 deg, clean renders)
 # A free slide whose own stated axis sigma exceeds MAX_AXIS_SIGMA_DEG (a rival slide fits as well)
-# does not fix its direction: its face normal is then taken up to these looser limits.
+# does not fix its direction: its face normal is then taken up to this tilt, beyond
+# FRONT_MAX_TILT_DEG with the faces read within this looser agreement (within it: the usual one).
 UNSURE_MAX_TILT_DEG = 60.0
 UNSURE_STATES_AGREE_DEG = 10.0
 
@@ -446,8 +447,9 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
     tilt = axis_angle_deg(normal, joint.axis)
     if tilt < FRONT_MIN_TILT_DEG or tilt > (UNSURE_MAX_TILT_DEG if unsure else FRONT_MAX_TILT_DEG):
         return joint
-    if tilt <= FRONT_MAX_TILT_DEG and disagreement > FRONT_STATES_AGREE_DEG:
-        return joint            # within the usual window the face must be read as closely as usual
+    # the looser reading is for the faces beyond the usual window only
+    if disagreement > (FRONT_STATES_AGREE_DEG if tilt <= FRONT_MAX_TILT_DEG else UNSURE_STATES_AGREE_DEG):
+        return joint
     seed_motion = np.eye(4)
     seed_motion[:3, 3] = normal * float(joint.distance) * float(np.cos(np.radians(tilt)))
     held_fit = dict(joint_type="prismatic", initial_transform=seed_motion, slide_axis=normal, **fit_options)
