@@ -11,7 +11,7 @@ import pytest
 from conftest import REPO_ROOT
 
 from sparseart.align.still import (STILL_MAX_SHIFT_PX, STILL_MIN_SHARE, image_shift, pixel_agreement,
-                                   place_through_twins, still_camera)
+                                   place_through_twins, still_camera, still_tiles)
 from sparseart.lift.rgbd import pointmap_from_depth
 from sparseart.types import Camera, Frame
 
@@ -61,6 +61,22 @@ def test_the_image_shift_reads_how_far_the_picture_moved():
     assert image_shift(rgb, rgb) < 0.1
     moved = np.roll(np.roll(rgb, 3, axis=0), 4, axis=1)
     assert image_shift(rgb, moved) == pytest.approx(5.0, abs=0.5) and image_shift(rgb, moved) > STILL_MAX_SHIFT_PX
+
+
+def test_a_still_camera_whose_view_a_moved_door_fills_is_told_by_its_tiles():
+    """A textured door over 55 % of the picture moved 12 px: the whole picture's shift follows
+    the door, the tiles of the room beside it lie still, so the pair is one camera; the room seen
+    from 5 px to the side is not, tiles or not."""
+    depth, rgb = _room()
+    door = np.random.default_rng(1).integers(0, 255, size=(60, 100, 3), dtype=np.uint8)
+    closed, opened = rgb.copy(), rgb.copy()
+    closed[:, :44], opened[:, :44] = door[:, :44], door[:, 12:56]
+    assert image_shift(closed, opened) > STILL_MAX_SHIFT_PX
+    assert still_tiles(closed, opened)
+    start, end = _frame("start", depth, closed), _frame("end", depth, opened)
+    share, _ = pixel_agreement(start, end, *_with_maps([start, end]))
+    assert share == pytest.approx(36 / 80, abs=0.02)      # the room beside the door agrees
+    assert not still_tiles(rgb, np.roll(rgb, 5, axis=1))
 
 
 def test_the_states_are_aligned_through_the_still_view_and_a_left_out_view_through_its_twin():

@@ -15,6 +15,7 @@ from sparseart.geometry.sampling import random_subset
 from sparseart.geometry.transforms import axis_angle_deg
 from sparseart.joints.clean import estimate_normals
 from sparseart.joints.fit import FitConfig, fit_joint
+from sparseart.joints.siblings import slides_like_siblings
 from sparseart.joints.reliability import HALF_TURN_DEG, MAX_AXIS_SIGMA_DEG
 from sparseart.joints.uncertainty import frame_misfit
 from sparseart.types import JointEstimate, LabelledCloud, PartLabels, PartResult
@@ -43,6 +44,8 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
     frame_error = frame_misfit(start.points[static_mask], end.points[labels.end_part == 0],
                                seed=(config or FitConfig()).seed)
     results = []
+    inputs: dict[int, tuple[tuple[np.ndarray, np.ndarray], dict]] = {}   # part id -> points, fit options
+    free_type: set[int] = set()
     for spec in labels.parts:
         start_mask = labels.start_part == spec.id
         end_mask = labels.end_part == spec.id
@@ -67,14 +70,28 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
         except ValueError as error:
             warnings.append(f"part {spec.id}: joint fit failed: {error}")
             continue
+        result.joint = joint
+        if part_type == "auto":    # a type the labeler or the user gave stays
+            free_type.add(spec.id)
+        inputs[spec.id] = ((start.points[start_mask], end.points[end_mask]),
+                           dict(start_colors=start.colors[start_mask], end_colors=end.colors[end_mask], config=config,
+                                start_confidence=start.confidence[start_mask],
+                                end_confidence=end.confidence[end_mask], frame_error=frame_error))
+    fitted = {r.spec.id: r for r in results if r.joint is not None}
+    turned_to_slides = slides_like_siblings({pid: r.joint for pid, r in fitted.items()},
+                                            {pid: inputs[pid][0] for pid in fitted},
+                                            {pid: inputs[pid][1] for pid in fitted}, free_type)
+    for pid, joint in turned_to_slides.items():
+        fitted[pid].joint = joint
+    for pid, result in fitted.items():
+        joint = result.joint
         if joint.type == "revolute":
             joint.origin = point_on_line_nearest(joint.origin, joint.axis, object_centre)
-        pairing = float(labels.confidence.get(spec.id, 1.0))
+        pairing = float(labels.confidence.get(pid, 1.0))
         if pairing < 1.0:   # look-alike parts that could pair the other way round (the labeler warned)
             joint.diagnostics["pairing_confidence"] = pairing
             joint.confidence *= pairing
-        warnings.extend(f"part {spec.id}: {w}" for w in joint.warnings)
-        result.joint = joint
+        warnings.extend(f"part {pid}: {w}" for w in joint.warnings)
     return results
 
 
