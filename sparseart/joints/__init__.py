@@ -5,7 +5,8 @@ Modules (one concern each): ``config`` (FitConfig, budgets), ``part`` (prepare_p
 normalisation, the shared subsamples), ``models`` (revolute / prismatic parameterisations),
 ``seeds`` (initial motion, seed screening), ``optimise`` (matching, robust solve, covariance ->
 ModelFit), ``select`` (type choice), ``uncertainty`` (stated sigma), ``reliability`` (warning
-codes, confidence), ``fit`` (fit_joint, the orchestration), ``clean``, ``candidates``.
+codes, confidence), ``fit`` (fit_joint, the orchestration), ``clean``, ``candidates``,
+``siblings`` (whole-object consistency: look-alike parts slide alike).
 
 Public entry points::
 

@@ -26,7 +26,10 @@ MIN_PART_POINTS = 20
 def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, joint_type: str = "auto",
               config: FitConfig | None = None, warnings: list[str]) -> list[PartResult]:
     """Fit every movable part's joint (:func:`fit_part`); parts with too few points get a warning
-    and no joint. Revolute origins are moved to the axis point nearest the object's median point.
+    and no joint. Then the parts are read together: a turn, or a slide that does not fix its
+    direction, that a look-alike sibling's slide explains about as well becomes a slide along it
+    (:func:`~sparseart.joints.siblings.slides_like_siblings`; only parts whose type was not given).
+    Revolute origins are moved to the axis point nearest the object's median point.
     A joint's confidence is multiplied by the labeler's trust in its part's pairing
     (``labels.confidence``; ``diagnostics["pairing_confidence"]`` when below 1).
     The stated uncertainty gains the static frame's own error (:func:`~sparseart.joints.uncertainty.
