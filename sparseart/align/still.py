@@ -176,7 +176,7 @@ def image_shift(start_rgb: np.ndarray, end_rgb: np.ndarray) -> float:
 # correlation with it: the camera is still judged unmoved when at least STILL_MIN_TILES of the
 # textured tiles of a TILE_GRID x TILE_GRID grid, and STILL_MIN_TILE_SHARE of them, lie still (shift
 # <= STILL_MAX_SHIFT_PX). Measured (benchmarks/results/realistic/siblings_and_tiles/tiles.txt):
-# camera moved 10-21 deg, 81 view pairs of 19 clean and 16 realistic renders: at most 2 still
+# camera moved 10-21 deg, 114 view pairs of 19 clean and 19 realistic renders: at most 2 still
 # tiles; one camera, the pairs a door or a lid fills (whole-picture shift 20-45 px): a realistic
 # fridge 10-12 of 16, a clean dishwasher 4 of 9 (and 2 of 8), a clean laptop 2 of 4.
 TILE_GRID = 4

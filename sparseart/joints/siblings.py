@@ -29,28 +29,25 @@ SIBLING_MAX_AXIS_SIGMA_DEG = 10.0
 
 def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tuple[np.ndarray, np.ndarray]],
                          fit_options: dict[int, dict], free_type: set[int]) -> dict[int, JointEstimate]:
-    """Turns, and slides that do not fix their own direction, re-fitted as slides along a look-alike
-    sibling's slide direction, where that fits as well.
+    """Turns re-fitted as slides along a look-alike sibling's slide direction, where that fits as well.
 
     joints: part id -> its chosen fit; points: part id -> ((N, 3), (M, 3)) float64 start / end
     points, the fits' frame; fit_options: part id -> the keyword arguments of its fits (colours,
     config, confidences, frame error); free_type: the ids whose type may change (not given by
-    the user or the labeler). For every revolute part among them, and every prismatic part
-    whose axis sigma is above ``SIBLING_MAX_AXIS_SIGMA_DEG``, every prismatic sibling whose
+    the user or the labeler). For every revolute part among them, every prismatic sibling whose
     axis sigma is at most ``SIBLING_MAX_AXIS_SIGMA_DEG`` and whose RMS radius (end state) is
     within ``SIBLING_SIZE_RATIO`` of the part's lends its axis; the part is fitted as a slide held
-    to it (only the distance free), and the best such fit replaces the own fit when its residual is
-    within ``SIBLING_RESIDUAL_RATIO`` of its own fit's. The replacement's axis sigma is the sibling's
+    to it (only the distance free), and the best such fit replaces the turn when its residual is
+    within ``SIBLING_RESIDUAL_RATIO`` of the turn's. The replacement's axis sigma is the sibling's
     (the held fit has none of its own) and ``diagnostics["sibling_of"]`` names the sibling and
-    keeps the own fit's axis and residual. Returns part id -> replacement (only the replaced parts).
+    keeps the turn's axis, angle and residual. Returns part id -> replacement (only the replaced parts).
     O(T S) held fits for T turns and S slides.
     """
     slides = {pid: j for pid, j in joints.items() if j.type == "prismatic" and j.distance
               and float(j.uncertainty.get("axis_deg", 0.0)) <= SIBLING_MAX_AXIS_SIGMA_DEG}
     replaced: dict[int, JointEstimate] = {}
-    for pid, own in joints.items():
-        unsure_slide = own.type == "prismatic" and pid not in slides
-        if not (own.type == "revolute" and pid in free_type or unsure_slide) or not slides:
+    for pid, turn in joints.items():
+        if turn.type != "revolute" or pid not in free_type or not slides:
             continue
         start, end = points[pid]
         best: tuple[JointEstimate, int, np.ndarray] | None = None
@@ -66,7 +63,7 @@ def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tup
                 continue
             if best is None or held.residual < best[0].residual:
                 best = (held, sid, seed)
-        if best is None or best[0].residual > SIBLING_RESIDUAL_RATIO * own.residual:
+        if best is None or best[0].residual > SIBLING_RESIDUAL_RATIO * turn.residual:
             continue
         _, sid, seed = best
         sibling = slides[sid]
@@ -75,14 +72,12 @@ def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tup
                          **fit_options[pid])
         sigma = float(np.hypot(held.uncertainty.get("axis_deg", 0.0), sibling.uncertainty.get("axis_deg", 0.0)))
         held.uncertainty["axis_deg"] = sigma
-        held.diagnostics["sibling_of"] = {"part": int(sid), "own_type": own.type, "own_axis": own.axis.tolist(),
-                                          "own_angle_deg": float(np.degrees(own.angle or 0.0)),
-                                          "own_residual": float(own.residual)}
-        what = (f"a {np.degrees(own.angle or 0.0):.1f} deg turn" if own.type == "revolute" else
-                f"a slide whose direction the points do not fix (axis uncertainty "
-                f"{own.uncertainty.get('axis_deg', 0.0):.1f} deg)")
-        held.warnings.append(f"fitted as a slide along sibling part {sid}'s direction: its own best fit, {what}, "
-                             f"explained the points only {own.residual / held.residual:.2f} x better "
+        held.diagnostics["sibling_of"] = {"part": int(sid), "turn_axis": turn.axis.tolist(),
+                                          "turn_angle_deg": float(np.degrees(turn.angle or 0.0)),
+                                          "turn_residual": float(turn.residual)}
+        held.warnings.append(f"fitted as a slide along sibling part {sid}'s direction: its own best fit, a "
+                             f"{np.degrees(turn.angle or 0.0):.1f} deg turn, "
+                             f"explained the points only {turn.residual / held.residual:.2f} x better "
                              f"(axis uncertainty {sigma:.1f} deg)")
         replaced[pid] = held
     return replaced
