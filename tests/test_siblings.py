@@ -60,6 +60,24 @@ def test_a_turn_that_a_sibling_slide_explains_as_well_becomes_that_slide():
     assert slides_like_siblings({1: turn, 2: _sibling(sigma=20.0)}, points, {1: {}, 2: {}}, free_type={1, 2}) == {}
 
 
+def test_a_half_turn_among_sliding_siblings_gives_way_more_easily():
+    """A turn that the sibling's slide explains at 1.7 x its residual stays; a half-turn (a
+    symmetric part's flipped match) at the same ratio becomes the slide."""
+    rng = np.random.default_rng(3)
+    start, end = _slid_rack_with_wall(rng)
+    held = fit_joint(start, end, joint_type="prismatic", slide_axis=SLIDE, uncertainty=False)
+    points = {1: (start, end), 2: (_rack(rng), _rack(rng) + 0.2 * SLIDE)}
+
+    def turn(angle_deg: float) -> JointEstimate:
+        return JointEstimate(type="revolute", axis=np.array([0.0, 1.0, 0.0]), origin=np.zeros(3),
+                             angle=np.radians(angle_deg), distance=None, transform=np.eye(4), uncertainty={},
+                             residual=held.residual / 1.7, confidence=0.9)
+
+    assert slides_like_siblings({1: turn(100.0), 2: _sibling()}, points, {1: {}, 2: {}}, free_type={1}) == {}
+    flipped = slides_like_siblings({1: turn(174.0), 2: _sibling()}, points, {1: {}, 2: {}}, free_type={1})
+    assert flipped[1].type == "prismatic" and abs(flipped[1].axis @ SLIDE) > 1 - 1e-9
+
+
 def test_a_door_beside_a_sliding_sibling_stays_a_turn():
     """A door the size of its sliding sibling, turned 35 deg about its edge: a slide along the
     sibling's rails explains it far worse, so the turn stays."""

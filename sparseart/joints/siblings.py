@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from sparseart.joints.fit import fit_joint
+from sparseart.joints.reliability import HALF_TURN_DEG
 from sparseart.types import JointEstimate
 
 # A held sibling slide replaces a part's turn when its RMS residual is within this factor of the
@@ -20,6 +21,11 @@ from sparseart.types import JointEstimate
 # turns held along a sibling rack's slide at 0.93-1.38 x; the oven doors, the only other turns
 # beside those slides, at 2.1-3.1 x.
 SIBLING_RESIDUAL_RATIO = 1.4
+# ... within this factor for a half-turn (> HALF_TURN_DEG): a symmetric part's flipped match, whose
+# residual is no fair rival (measured: two twin drawers of a cabinet, unposed without masks, labelled
+# as one part that slid 0.218 and 0.245 and fitted as a 174 deg turn; held along a sibling drawer's
+# slide at 1.82-1.91 x).
+HALF_TURN_SIBLING_RATIO = 2.0
 # Siblings are alike in size: the turned part's RMS radius within this factor of the slide's (end state,
 # where a pulled-out part is seen best).
 SIBLING_SIZE_RATIO = 2.0
@@ -38,10 +44,11 @@ def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tup
     axis sigma is at most ``SIBLING_MAX_AXIS_SIGMA_DEG`` and whose RMS radius (end state) is
     within ``SIBLING_SIZE_RATIO`` of the part's lends its axis; the part is fitted as a slide held
     to it (only the distance free), and the best such fit replaces the turn when its residual is
-    within ``SIBLING_RESIDUAL_RATIO`` of the turn's. The replacement's axis sigma is the sibling's
-    (the held fit has none of its own) and ``diagnostics["sibling_of"]`` names the sibling and
-    keeps the turn's axis, angle and residual. Returns part id -> replacement (only the replaced parts).
-    O(T S) held fits for T turns and S slides.
+    within ``SIBLING_RESIDUAL_RATIO`` of the turn's (``HALF_TURN_SIBLING_RATIO`` for a half-turn).
+    The replacement's axis sigma is the sibling's and its own in quadrature (the held fit has
+    no direction error of its own); ``diagnostics["sibling_of"]`` names the sibling and keeps
+    the turn's axis, angle and residual. Returns part id -> replacement (only the replaced
+    parts). O(T S) held fits for T turns and S slides.
     """
     slides = {pid: j for pid, j in joints.items() if j.type == "prismatic" and j.distance
               and float(j.uncertainty.get("axis_deg", 0.0)) <= SIBLING_MAX_AXIS_SIGMA_DEG}
@@ -63,7 +70,9 @@ def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tup
                 continue
             if best is None or held.residual < best[0].residual:
                 best = (held, sid, seed)
-        if best is None or best[0].residual > SIBLING_RESIDUAL_RATIO * turn.residual:
+        flipped = np.degrees(abs(turn.angle or 0.0)) > HALF_TURN_DEG
+        if best is None or best[0].residual > (HALF_TURN_SIBLING_RATIO if flipped else SIBLING_RESIDUAL_RATIO) \
+                * turn.residual:
             continue
         _, sid, seed = best
         sibling = slides[sid]
