@@ -164,7 +164,7 @@ def test_a_half_turn_is_flagged_and_lowers_the_confidence():
 
 def test_tied_hinge_rivals_widen_the_axis_sigma_and_far_ones_do_not():
     """choose_fit takes the hinge axis nearest the static part (among those about as near, the
-    lowest residual). A rival that fits as well and lies
+    lowest residual when even the nearest is far from it). A rival that fits as well and lies
     about as near (a rod's roll) makes that choice a coin toss: the sigma covers the rival. A rival
     the attachment rule tells apart (its axis far from the body) leaves the sigma alone."""
     from sparseart.joints.candidates import choose_fit, widen_for_tied_hinges
@@ -194,16 +194,17 @@ def test_tied_hinge_rivals_widen_the_axis_sigma_and_far_ones_do_not():
     assert choose_fit([better, on_wall := hinge(0.0420, [0, 0, 1], [0.0, 0.0, 0.0])], part, static) is on_wall
     assert choose_fit([better, hinge(0.0500, [0, 0, 1], [0.0, 0.0, 0.0])], part, static) is better
 
-    # two hinges about as near the wall (0.05 and 0.06 from it: within 1.25 x) are not told apart
-    # by the attachment: a clearly (5 %) lower residual wins, and the other is its tied rival; 1 % lower
-    # is noise, the nearer stays
+    # two hinges about as near the wall: attached (0.05 and 0.06 from it, the part's radius ~0.15),
+    # the nearer wins whatever the residual; with the wall seen only far off (0.3 and 0.35 away, over
+    # 0.5 part radii) the attachment tells nothing and the lower residual wins
     wall = np.column_stack([np.zeros(40000), rng.uniform(-1, 1, 40000), rng.uniform(-1, 1, 40000)])
-    nearer = hinge(0.0105, [0, 0, 1], [-0.05, 0.0, 0.0])
-    fits_better = hinge(0.0100, [0, np.sin(np.radians(12)), np.cos(np.radians(12))], [-0.06, 0.0, 0.0])
+    tilt = [0, np.sin(np.radians(12)), np.cos(np.radians(12))]
+    nearer, fits_better = hinge(0.0105, [0, 0, 1], [-0.05, 0.0, 0.0]), hinge(0.0100, tilt, [-0.06, 0.0, 0.0])
+    assert choose_fit([nearer, fits_better], part, wall) is nearer
+    nearer, fits_better = hinge(0.0105, [0, 0, 1], [-0.30, 0.0, 0.0]), hinge(0.0100, tilt, [-0.35, 0.0, 0.0])
     chosen = choose_fit([nearer, fits_better], part, wall)
     assert chosen is fits_better and chosen.diagnostics["tied_hinge_deg"] == pytest.approx(12.0, abs=1e-6)
-    assert choose_fit([nearer, hinge(0.0100, [0, 0, 1], [-0.08, 0.0, 0.0])], part, wall) is nearer  # 1.6 x: told apart
-    assert choose_fit([hinge(0.0101, [0, 0, 1], [-0.05, 0.0, 0.0]), fits_better], part, wall) is not fits_better
+    assert choose_fit([nearer, hinge(0.0100, [0, 0, 1], [-0.45, 0.0, 0.0])], part, wall) is nearer  # 1.5 x: told apart
 
     alone = hinge(0.0101, [0, 0, 1], [0.0, 0.0, 0.0])
     chosen = choose_fit([alone, hinge(0.0099, [0, 1, 0], [0.6, 0.0, 0.0])], part, static)

@@ -655,16 +655,15 @@ def choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
     """Among fits from different seeds, keep those whose residual is within
     ``COMPARABLE_RESIDUAL_RATIO`` of the best. If the best is revolute and several comparable
     revolute fits remain, the one whose axis lies nearest the static part wins (a hinge is
-    attached to its parent; among the nearly as near, a clearly lower residual); otherwise the lowest
+    attached to its parent); otherwise the lowest
     residual. Measured against a tighter window
     (1.25 x; 2026-11-27, ``benchmarks/results/realistic/face_and_choice/``): the attachment was
     right where the residual was not on three robot-shaped microwave doors (a rival 30-34 % worse,
     or the 36.7 deg turn at 1.33 x its 143.9 deg mirror) and wrong on one realistic stapler (a
-    rival 35 % worse, 25.6 deg off). Hinges that lie about as near as the nearest (within
-    ``TIED_GAP_RATIO`` of its distance) are not told apart by it: the lowest residual among them
-    wins when it is lower by ``CLEARLY_LOWER_RESIDUAL_RATIO`` (a realistic oven's second door, its
-    static surroundings half hidden: axes 0.31 and 0.38 from the static points, the nearer 12 deg
-    off at a 4 % higher residual; ties 0.04-0.8 % apart went either way, so they stay with the nearest).
+    rival 35 % worse, 25.6 deg off). When even the nearest hinge lies farther than
+    ``UNATTACHED_GAP_RADII`` part radii from the static points (its surroundings unseen), the
+    attachment tells nothing among the hinges about as near (within ``TIED_GAP_RATIO``): the
+    lowest residual among them wins.
     O(C (25 log S)) for C candidates."""
     best = min(candidates, key=lambda c: c.residual)
     comparable = [c for c in candidates if c.residual <= COMPARABLE_RESIDUAL_RATIO * best.residual
@@ -681,12 +680,11 @@ def choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
 
     gaps = {id(c): axis_gap(c) for c in comparable}
     chosen = min(comparable, key=lambda c: gaps[id(c)])
-    # the attachment decides as far as it can tell the axes apart; among those about as near, a clearly
-    # lower residual does
-    attached = [c for c in comparable if gaps[id(c)] <= TIED_GAP_RATIO * gaps[id(chosen)]]
-    fits_best = min(attached, key=lambda c: c.residual)
-    if fits_best.residual * CLEARLY_LOWER_RESIDUAL_RATIO < chosen.residual:
-        chosen = fits_best
+    if gaps[id(chosen)] > UNATTACHED_GAP_RADII * rms_radius(start_points):
+        # even the nearest hinge is far from the static points seen: the attachment cannot tell the
+        # hinges about as near apart, the residual does
+        chosen = min((c for c in comparable if gaps[id(c)] <= TIED_GAP_RATIO * gaps[id(chosen)]),
+                     key=lambda c: c.residual)
     if chosen is not best:
         chosen.warnings.append("several motions fit alike (symmetric part): chose the axis nearest the static part")
     tied = [c for c in comparable if c is not chosen and c.residual <= RIVAL_SLIDE_RESIDUAL_RATIO * chosen.residual
@@ -697,9 +695,11 @@ def choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
 
 
 TIED_GAP_RATIO = 1.25   # a rival hinge axis this close to the static part (x the chosen one's distance) is a tie
-# ... which the residual breaks only when it is lower by this factor: below it the residuals of tied
-# hinges differ by noise (measured on realistic renders: 0.04-0.8 % apart, either one the better axis)
-CLEARLY_LOWER_RESIDUAL_RATIO = 1.03
+# The nearest hinge lies farther than this many part radii (RMS) from the static points: nothing it could
+# be attached to is seen, and the residual breaks the tie (measured: a realistic oven's second door,
+# 0.93 radii, the nearest 12 deg off at a 4 % higher residual; attached hinges 0.04 radii (a washing
+# machine's door, robot view, the nearest right and a rival 3.5 % lower 4.9 deg off) and 0.38 (a box lid)).
+UNATTACHED_GAP_RADII = 0.5
 
 
 def widen_for_tied_hinges(chosen: JointEstimate, tied_deg: float | None) -> None:
