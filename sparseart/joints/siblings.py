@@ -19,7 +19,7 @@ from sparseart.types import JointEstimate
 # A held sibling slide replaces a part's turn when its RMS residual is within this factor of the
 # turn's. Measured on the realistic oven's wire racks (seeds 0-3): the racks fitted as 17-25 deg
 # turns held along a sibling rack's slide at 0.93-1.38 x; the oven doors, the only other turns
-# beside those slides, at 2.1-3.1 x.
+# beside those slides, at 1.76-3.1 x.
 SIBLING_RESIDUAL_RATIO = 1.4
 # ... within this factor for a half-turn (> HALF_TURN_DEG): a symmetric part's flipped match, whose
 # residual is no fair rival (measured: two twin drawers of a cabinet, unposed without masks, labelled
