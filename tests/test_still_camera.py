@@ -11,7 +11,7 @@ import pytest
 from conftest import REPO_ROOT
 
 from sparseart.align.still import (STILL_MAX_SHIFT_PX, STILL_MIN_SHARE, image_shift, pixel_agreement,
-                                   place_through_twins, still_camera, still_tiles)
+                                   place_through_twins, still_camera, still_pairs, still_tiles)
 from sparseart.lift.rgbd import pointmap_from_depth
 from sparseart.types import Camera, Frame
 
@@ -76,6 +76,10 @@ def test_a_still_camera_whose_view_a_moved_door_fills_is_told_by_its_tiles():
     start, end = _frame("start", depth, closed), _frame("end", depth, opened)
     share, _ = pixel_agreement(start, end, *_with_maps([start, end]))
     assert share == pytest.approx(36 / 80, abs=0.02)      # the room beside the door agrees
+    # one camera, but its depth is not matched between the states on the margins the door leaves
+    start_map, end_map = _with_maps([start, end])
+    assert still_pairs([start], [end], [start_map], [end_map]) == {}
+    assert still_pairs([start], [start], [start_map], [start_map]) == {0: 0}
     assert not still_tiles(rgb, np.roll(rgb, 5, axis=1))
 
 
