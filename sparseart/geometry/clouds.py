@@ -103,6 +103,11 @@ def scene_size(points: np.ndarray, max_points: int = 20000) -> float:
     return float(np.median(np.linalg.norm(points - points.mean(axis=0), axis=1)))
 
 
+def rms_radius(points: np.ndarray) -> float:
+    """RMS distance of (N, 3) ``points`` to their centroid (their units). O(N)."""
+    return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
+
+
 def spread(points: np.ndarray) -> np.ndarray:
     """(3,) RMS extent of the points along their principal axes, largest first. O(N)."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)

@@ -9,14 +9,14 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from sparseart.geometry.clouds import median_spacing, slab_axes
+from sparseart.geometry.clouds import median_spacing, rms_radius, slab_axes
 from sparseart.geometry.planes import best_by_truncated_chamfer, hinge_turns, ransac_plane
 from sparseart.geometry.sampling import random_subset
 from sparseart.geometry.transforms import axis_angle_deg
 from sparseart.joints.clean import estimate_normals
 from sparseart.joints.fit import FitConfig, fit_joint
-from sparseart.joints.siblings import slides_like_siblings
 from sparseart.joints.reliability import HALF_TURN_DEG, MAX_AXIS_SIGMA_DEG
+from sparseart.joints.siblings import slides_like_siblings
 from sparseart.joints.uncertainty import frame_misfit
 from sparseart.types import JointEstimate, LabelledCloud, PartLabels, PartResult
 
@@ -26,8 +26,8 @@ MIN_PART_POINTS = 20
 def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, joint_type: str = "auto",
               config: FitConfig | None = None, warnings: list[str]) -> list[PartResult]:
     """Fit every movable part's joint (:func:`fit_part`); parts with too few points get a warning
-    and no joint. Then the parts are read together: a turn, or a slide that does not fix its
-    direction, that a look-alike sibling's slide explains about as well becomes a slide along it
+    and no joint. Then the parts are read together: a turn that a look-alike sibling's slide
+    explains about as well becomes a slide along it
     (:func:`~sparseart.joints.siblings.slides_like_siblings`; only parts whose type was not given).
     Revolute origins are moved to the axis point nearest the object's median point.
     A joint's confidence is multiplied by the labeler's trust in its part's pairing
@@ -612,14 +612,9 @@ def detached_slide_seeds(candidates: list[JointEstimate], part_start: np.ndarray
     return [seed, *body_axis_slides(static_points, shift, length)]
 
 
-def rms_radius(points: np.ndarray) -> float:
-    """RMS distance of (N, 3) ``points`` to their centroid (their units). O(N)."""
-    return float(np.sqrt(np.mean(np.sum((points - points.mean(axis=0)) ** 2, axis=1))))
-
-
 def hinge_reach(candidate: JointEstimate, points: np.ndarray, radius: float) -> float:
     """Distance from the candidate's axis line to the nearest of ``points`` ((N, 3) float64, the
-    candidate's frame), in units of ``radius`` (the points' :func:`rms_radius`; unit-free). O(N)."""
+    candidate's frame), in units of ``radius`` (the points' :func:`~sparseart.geometry.clouds.rms_radius`; unit-free). O(N)."""
     offsets = points - candidate.origin
     across = offsets - np.outer(offsets @ candidate.axis, candidate.axis)
     return float(np.sqrt(np.min(np.sum(across ** 2, axis=1))) / max(radius, 1e-12))
@@ -655,8 +650,7 @@ def choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
     """Among fits from different seeds, keep those whose residual is within
     ``COMPARABLE_RESIDUAL_RATIO`` of the best. If the best is revolute and several comparable
     revolute fits remain, the one whose axis lies nearest the static part wins (a hinge is
-    attached to its parent); otherwise the lowest
-    residual. Measured against a tighter window
+    attached to its parent); otherwise the lowest residual. Measured against a tighter window
     (1.25 x; 2026-11-27, ``benchmarks/results/realistic/face_and_choice/``): the attachment was
     right where the residual was not on three robot-shaped microwave doors (a rival 30-34 % worse,
     or the 36.7 deg turn at 1.33 x its 143.9 deg mirror) and wrong on one realistic stapler (a

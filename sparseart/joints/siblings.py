@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from sparseart.geometry.clouds import rms_radius
 from sparseart.joints.fit import fit_joint
 from sparseart.joints.reliability import HALF_TURN_DEG
 from sparseart.types import JointEstimate
@@ -52,6 +53,7 @@ def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tup
     """
     slides = {pid: j for pid, j in joints.items() if j.type == "prismatic" and j.distance
               and float(j.uncertainty.get("axis_deg", 0.0)) <= SIBLING_MAX_AXIS_SIGMA_DEG}
+    radii = {pid: rms_radius(end) for pid, (_, end) in points.items()}   # end state: a pulled-out part seen best
     replaced: dict[int, JointEstimate] = {}
     for pid, turn in joints.items():
         if turn.type != "revolute" or pid not in free_type or not slides:
@@ -59,8 +61,8 @@ def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tup
         start, end = points[pid]
         best: tuple[JointEstimate, int, np.ndarray] | None = None
         for sid, slide in slides.items():
-            if not _alike(end, points[sid][1]):
-                continue
+            if max(radii[pid], radii[sid]) > SIBLING_SIZE_RATIO * max(min(radii[pid], radii[sid]), 1e-12):
+                continue    # not alike in size
             seed = np.eye(4)
             seed[:3, 3] = slide.axis * float((end.mean(axis=0) - start.mean(axis=0)) @ slide.axis)
             try:
@@ -91,10 +93,3 @@ def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tup
         replaced[pid] = held
     return replaced
 
-
-def _alike(end_a: np.ndarray, end_b: np.ndarray) -> bool:
-    """Whether two parts' end points ((N, 3), (M, 3)) are alike in size: RMS radii within
-    ``SIBLING_SIZE_RATIO``. O(N + M)."""
-    ra = float(np.sqrt(np.mean(np.sum((end_a - end_a.mean(axis=0)) ** 2, axis=1))))
-    rb = float(np.sqrt(np.mean(np.sum((end_b - end_b.mean(axis=0)) ** 2, axis=1))))
-    return max(ra, rb) <= SIBLING_SIZE_RATIO * max(min(ra, rb), 1e-12)

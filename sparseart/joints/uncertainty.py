@@ -33,7 +33,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from sparseart.geometry.clouds import median_spacing
+from sparseart.geometry.clouds import median_spacing, rms_radius
 from sparseart.joints.config import UNCERTAINTY_FLOOR
 from sparseart.joints.optimise import ModelFit, Problem, one_to_one_pairs, pair_weights
 from sparseart.joints.part import MIN_POINTS, Sample
@@ -220,8 +220,7 @@ def frame_misfit(static_start: np.ndarray, static_end: np.ndarray, seed: int = 0
         return 0.0, 0.0
     raw = float(np.sqrt(np.mean(distance ** 2)))
     misfit = float(np.sqrt(max(raw ** 2 - spacing ** 2, 0.0)))
-    radius = float(np.sqrt(np.mean(np.sum((start - start.mean(axis=0)) ** 2, axis=1))))
-    return misfit, radius
+    return misfit, rms_radius(start)
 
 
 def frame_turn(misfit: float, radius: float) -> float:
