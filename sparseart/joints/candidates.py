@@ -63,23 +63,21 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
             continue
         part_type = joint_type if joint_type != "auto" else (spec.joint_type or "auto")
         seeds = [labels.initial_motion.get(spec.id), *labels.alternative_motions.get(spec.id, [])]
+        part_points = (start.points[start_mask], end.points[end_mask])
+        fit_options = dict(start_colors=start.colors[start_mask], end_colors=end.colors[end_mask], config=config,
+                           start_confidence=start.confidence[start_mask],
+                           end_confidence=end.confidence[end_mask], frame_error=frame_error)
         try:
-            joint = fit_part(start.points[start_mask], end.points[end_mask], start.colors[start_mask],
-                             end.colors[end_mask], part_type, seeds, static_points, config,
-                             support_points=support_points, start_confidence=start.confidence[start_mask],
-                             end_confidence=end.confidence[end_mask], frame_error=frame_error,
-                             type_prior=labels.type_prior.get(spec.id),
-                             views=(start.frame_index[start_mask], end.frame_index[end_mask]))
+            joint = fit_part(*part_points, joint_type=part_type, seeds=seeds, static_points=static_points,
+                             support_points=support_points, type_prior=labels.type_prior.get(spec.id),
+                             views=(start.frame_index[start_mask], end.frame_index[end_mask]), **fit_options)
         except ValueError as error:
             warnings.append(f"part {spec.id}: joint fit failed: {error}")
             continue
         result.joint = joint
         if part_type == "auto":    # a type the labeler or the user gave stays
             free_type.add(spec.id)
-        inputs[spec.id] = ((start.points[start_mask], end.points[end_mask]),
-                           dict(start_colors=start.colors[start_mask], end_colors=end.colors[end_mask], config=config,
-                                start_confidence=start.confidence[start_mask],
-                                end_confidence=end.confidence[end_mask], frame_error=frame_error))
+        inputs[spec.id] = (part_points, fit_options)
     fitted = {r.spec.id: r for r in results if r.joint is not None}
     turned_to_slides = slides_like_siblings({pid: r.joint for pid, r in fitted.items()},
                                             {pid: inputs[pid][0] for pid in fitted},
