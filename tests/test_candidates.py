@@ -205,6 +205,13 @@ def test_tied_hinge_rivals_widen_the_axis_sigma_and_far_ones_do_not():
     chosen = choose_fit([nearer, fits_better], part, wall)
     assert chosen is fits_better and chosen.diagnostics["tied_hinge_deg"] == pytest.approx(12.0, abs=1e-6)
     assert choose_fit([nearer, hinge(0.0100, [0, 0, 1], [-0.45, 0.0, 0.0])], part, wall) is nearer  # 1.5 x: told apart
+    # the best fit lies farther still (0.6, out of the tie): the better of the two about as near
+    # wins, and the warning says that no hinge axis lies on the static part seen
+    nearer, fits_better = hinge(0.0105, [0, 0, 1], [-0.30, 0.0, 0.0]), hinge(0.0102, tilt, [-0.35, 0.0, 0.0])
+    chosen = choose_fit([nearer, fits_better, hinge(0.0100, [0, 0, 1], [-0.60, 0.0, 0.0])], part, wall)
+    assert chosen is fits_better and "no hinge axis lies on the static part seen" in chosen.warnings[-1]
+    chosen = choose_fit([hinge(0.0105, [0, 0, 1], [-0.05, 0.0, 0.0]), hinge(0.0100, tilt, [-0.35, 0.0, 0.0])], part, wall)
+    assert "chose the axis nearest the static part" in chosen.warnings[-1]
 
     alone = hinge(0.0101, [0, 0, 1], [0.0, 0.0, 0.0])
     chosen = choose_fit([alone, hinge(0.0099, [0, 1, 0], [0.6, 0.0, 0.0])], part, static)

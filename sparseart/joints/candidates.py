@@ -672,13 +672,17 @@ def choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
 
     gaps = {id(c): axis_gap(c) for c in comparable}
     chosen = min(comparable, key=lambda c: gaps[id(c)])
-    if gaps[id(chosen)] > UNATTACHED_GAP_RADII * rms_radius(start_points):
+    unattached = gaps[id(chosen)] > UNATTACHED_GAP_RADII * rms_radius(start_points)
+    if unattached:
         # even the nearest hinge is far from the static points seen: the attachment cannot tell the
         # hinges about as near apart, the residual does
         chosen = min((c for c in comparable if gaps[id(c)] <= TIED_GAP_RATIO * gaps[id(chosen)]),
                      key=lambda c: c.residual)
     if chosen is not best:
-        chosen.warnings.append("several motions fit alike (symmetric part): chose the axis nearest the static part")
+        chosen.warnings.append(
+            "several motions fit alike (symmetric part): no hinge axis lies on the static part seen; chose "
+            "the best-fitting axis among those about as near it" if unattached else
+            "several motions fit alike (symmetric part): chose the axis nearest the static part")
     tied = [c for c in comparable if c is not chosen and c.residual <= RIVAL_SLIDE_RESIDUAL_RATIO * chosen.residual
             and gaps[id(c)] <= TIED_GAP_RATIO * gaps[id(chosen)]]
     if tied:
