@@ -5,7 +5,7 @@
 Rows of one method are paired by (object, setting, joint name) in the order they occur (one row
 per seed, seeds in the same order in both runs; rows present in only one run are left out and
 counted). Per setting it prints the joints, the successes (axis error < 10 deg; an unmatched
-joint counts 90 deg), the correct types and the median axis error before -> after; then every
+joint counts ``UNMATCHED_AXIS_DEG``, 90), the correct types and the median axis error before -> after; then every
 paired row whose axis error moved by more than ``--degrees``, crossed the 10 deg line or changed
 its predicted type. O(R log R) for R rows.
 """
@@ -18,13 +18,13 @@ from collections import defaultdict
 
 import numpy as np
 
-SUCCESS_DEG = 10.0
+from sparseart.bench.metrics import SUCCESS_AXIS_DEG, UNMATCHED_AXIS_DEG
 
 
 def axis_error(row: dict) -> float:
-    """The row's axis error in degrees; 90 for an unmatched joint or a missing value."""
+    """The row's axis error in degrees; ``UNMATCHED_AXIS_DEG`` for an unmatched joint or a missing value."""
     if row["unmatched"] in ("True", "true", "1") or row["axis_deg"] in ("", "nan", "None"):
-        return 90.0
+        return UNMATCHED_AXIS_DEG
     return float(row["axis_deg"])
 
 
@@ -56,12 +56,12 @@ def report(pairs: list[tuple[dict, dict]], degrees: float) -> list[str]:
         ea = np.array([axis_error(a) for _, a in chosen])
         tb = sum(b["type_correct"] == "True" for b, _ in chosen)
         ta = sum(a["type_correct"] == "True" for _, a in chosen)
-        lines.append(f"{setting}: n {len(chosen)} success {int((eb < SUCCESS_DEG).sum())} -> "
-                     f"{int((ea < SUCCESS_DEG).sum())}, type {tb} -> {ta}, median {np.median(eb):.2f} -> "
+        lines.append(f"{setting}: n {len(chosen)} success {int((eb < SUCCESS_AXIS_DEG).sum())} -> "
+                     f"{int((ea < SUCCESS_AXIS_DEG).sum())}, type {tb} -> {ta}, median {np.median(eb):.2f} -> "
                      f"{np.median(ea):.2f}")
     for b, a in pairs:
         x, y = axis_error(b), axis_error(a)
-        if abs(x - y) > degrees or (x < SUCCESS_DEG) != (y < SUCCESS_DEG) or b["pred_type"] != a["pred_type"]:
+        if abs(x - y) > degrees or (x < SUCCESS_AXIS_DEG) != (y < SUCCESS_AXIS_DEG) or b["pred_type"] != a["pred_type"]:
             lines.append(f"  {b['object'][:24]:24s} {b['setting'][:18]:18s} {b['name']} {x:6.2f} -> {y:6.2f} "
                          f"{b['pred_type']}->{a['pred_type']}")
     return lines
