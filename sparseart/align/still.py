@@ -121,17 +121,24 @@ def still_pairs(start: list[Frame], end: list[Frame], start_maps: list[Pointmap]
     on a realistic fridge: end view 1 registered by geometry at 52 % overlap before its depth
     was matched that way, not after; the pair still places a view through its twin).
     O(V H W log(H W))."""
-    return {k: k for k in range(min(len(start), len(end)))
-            if _same_place(start[k], end[k], start_maps[k], end_maps[k]) is not None
-            and image_shift(start[k].rgb, end[k].rgb) <= STILL_MAX_SHIFT_PX}
+    pairs = {}
+    for k in range(min(len(start), len(end))):
+        if not _one_camera(start[k], end[k]):
+            continue
+        shift = image_shift(start[k].rgb, end[k].rgb)    # judged once: _same_place reads it too
+        if shift <= STILL_MAX_SHIFT_PX and _same_place(start[k], end[k], start_maps[k], end_maps[k], shift) is not None:
+            pairs[k] = k
+    return pairs
 
 
-def _same_place(start: Frame, end: Frame, start_map: Pointmap, end_map: Pointmap) -> tuple[float, float] | None:
+def _same_place(start: Frame, end: Frame, start_map: Pointmap, end_map: Pointmap,
+                shift: float | None = None) -> tuple[float, float] | None:
     """(share, scale) of :func:`pixel_agreement` for two images of one camera (same size and
-    intrinsics) taken from one place (share >= ``STILL_MIN_SHARE``); None otherwise. O(H W log(H W))."""
+    intrinsics) taken from one place (share >= ``STILL_MIN_SHARE``); None otherwise. ``shift``:
+    the images' :func:`image_shift` when the caller has it. O(H W log(H W))."""
     if not _one_camera(start, end):
         return None
-    judged = pixel_agreement(start, end, start_map, end_map)
+    judged = pixel_agreement(start, end, start_map, end_map, shift)
     return judged if judged is not None and judged[0] >= STILL_MIN_SHARE else None
 
 
@@ -140,7 +147,8 @@ def _zoom(scale: float) -> np.ndarray:
     return np.diag([scale, scale, scale, 1.0])
 
 
-def pixel_agreement(start: Frame, end: Frame, start_map: Pointmap, end_map: Pointmap) -> tuple[float, float] | None:
+def pixel_agreement(start: Frame, end: Frame, start_map: Pointmap, end_map: Pointmap,
+                    shift: float | None = None) -> tuple[float, float] | None:
     """(share, scale) of two images of one camera: scale = median start / end depth over the
     pixels valid in both; share = the fraction of those pixels whose end depth x scale lies within
     ``STILL_DEPTH_TOLERANCE`` (relative) of the start depth and whose colours differ by less than
@@ -148,7 +156,8 @@ def pixel_agreement(start: Frame, end: Frame, start_map: Pointmap, end_map: Poin
     both, and share 0 when the images are shifted against each other by more than
     ``STILL_MAX_SHIFT_PX`` (:func:`image_shift`) and their tiles do not lie still
     (:func:`still_tiles`): large flat faces agree in depth and colour from a camera moved 10 deg
-    as well (a door's front: 47 % of the pixels). O(H W log(H W))."""
+    as well (a door's front: 47 % of the pixels). ``shift``: the images' :func:`image_shift` when
+    the caller has it (computed here otherwise). O(H W log(H W))."""
     depths = [_depth(f, m) for f, m in ((start, start_map), (end, end_map))]
     if any(d is None for d in depths) or depths[0].shape != depths[1].shape or start.rgb.shape != end.rgb.shape:
         return None
@@ -158,7 +167,8 @@ def pixel_agreement(start: Frame, end: Frame, start_map: Pointmap, end_map: Poin
         return None
     near, far = start_depth[valid], end_depth[valid]
     scale = float(np.median(near / far))
-    if image_shift(start.rgb, end.rgb) > STILL_MAX_SHIFT_PX and not still_tiles(start.rgb, end.rgb):
+    shift = image_shift(start.rgb, end.rgb) if shift is None else shift
+    if shift > STILL_MAX_SHIFT_PX and not still_tiles(start.rgb, end.rgb):
         return 0.0, scale
     depth_agrees = np.abs(far * scale - near) <= STILL_DEPTH_TOLERANCE * near
     colour = np.abs(start.rgb.astype(np.float64) - end.rgb.astype(np.float64)).mean(axis=2)[valid] / 255.0
