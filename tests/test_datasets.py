@@ -135,6 +135,35 @@ def test_unprojected_depth_lies_on_mesh():
     assert rgb[label > 0].std() > 10  # shading/colour contrast
 
 
+def _grid_plane(n: int, z: float, color: tuple[float, float, float]) -> RenderMesh:
+    """A unit square at height z split into 2 n^2 triangles of one colour."""
+    u = np.linspace(-0.5, 0.5, n + 1)
+    x, y = np.meshgrid(u, u)
+    vertices = np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], axis=1)
+    k = np.arange(n * (n + 1)).reshape(n, n + 1)[:, :n].ravel()
+    triangles = np.concatenate([np.stack([k, k + 1, k + n + 2], 1), np.stack([k, k + n + 2, k + n + 1], 1)])
+    return RenderMesh(vertices, triangles, np.tile(color, (len(triangles), 1)))
+
+
+def test_coplanar_duplicates_keep_their_colour_when_another_part_moves():
+    # a red and a blue copy of one surface (as PartNet meshes hold); a small box elsewhere moves
+    # between two renders. The unmoved surface must look the same in both, red (the first listed)
+    red = _grid_plane(12, 0.0, (1.0, 0.0, 0.0))
+    blue = _grid_plane(17, 0.0, (0.0, 0.0, 1.0))
+    box = box_mesh((-0.1, -0.1, -0.1), (0.1, 0.1, 0.1), (0.2, 0.8, 0.2))
+    K = intrinsics(64, 48)
+    c2w = look_at(np.array([0.3, -1.2, 1.4]), np.zeros(3))
+    images = []
+    for shift in (0.0, 0.35, 0.7):
+        moved = box.transformed(np.array([[1, 0, 0, 0.8 + shift], [0, 1, 0, 0],
+                                                               [0, 0, 1, 0.3], [0, 0, 0, 1.0]]))
+        rgb, depth, label = render_view([(red, 1), (blue, 1), (moved, 2)], K, c2w, 64, 48)
+        images.append(rgb[label == 1].astype(int))
+    assert len(images[0]) > 500
+    for rgb in images:
+        assert np.all(rgb[:, 0] > 0) and np.all(rgb[:, 2] == 0)
+
+
 def _check_gt_semantics(obj, gt: dict, q0: dict, q1: dict) -> None:
     rng = np.random.default_rng(0)
     p0 = dict((lab, m) for m, lab in obj.posed_parts(q0))
