@@ -301,7 +301,7 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
         labels = labeler.label(start, end, scene, aligned=True, motion_hints=hints, posed=known_frame)
     if alignment in ("features", "model"):
         with clock.stage("align.static", f"static part: ICP polish of the {alignment} alignment"):
-            end = polish_on_static(start, end, labels, warnings, seed=seed)
+            end, labels = polish_on_static(start, end, labels, warnings, seed=seed)
     warnings.extend(labels.warnings)
     known_type = options.joint_type != "auto" or all(p.joint_type for p in labels.movable)
     with clock.stage("fit", "joint type given: classification skipped" if known_type

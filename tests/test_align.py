@@ -419,7 +419,7 @@ def test_the_static_polish_runs_from_the_state_that_shows_less_of_the_static_par
         start, end = cloud(start_points, "start"), cloud(end_points, "end")
         labels = PartLabels(parts=[PartSpec(id=0, role="static")], start_part=np.zeros(len(start), dtype=np.int64),
                             end_part=np.zeros(len(end), dtype=np.int64))
-        polished = polish_on_static(start, end, labels, [], seed=0)
+        polished, _ = polish_on_static(start, end, labels, [], seed=0)
         # the polish is rigid: read its turn off the moved end points
         moved, before = polished.points - polished.points.mean(0), end.points - end.points.mean(0)
         u, _, vt = np.linalg.svd(before.T @ moved)
