@@ -200,3 +200,25 @@ def test_cli_bench_rejects_missing_objects(tmp_path, capsys):
 
     assert main(["bench", "--objects", str(tmp_path / "nope"), "--out", str(tmp_path / "out")]) == 2
     assert "--objects folder not found" in capsys.readouterr().err
+
+
+@requires_partnet
+def test_a_cached_render_of_another_renderer_version_is_rendered_again(tmp_path):
+    """The bench reuses a scene folder only when its stamp names the same setting and the same
+    renderer: a render from before a renderer change (coplanar duplicates re-coloured the body
+    between the states) must not be scored as if it were current."""
+    from sparseart.bench.objects import render_cached
+    from sparseart.datasets.raycast import RENDERER_VERSION
+
+    setting = BenchSetting(views=1, width=64, height=48)
+    scene_dir = tmp_path / "scene"
+    _, first = render_cached(PARTNET_DIR / "laptop_rotate_10211", scene_dir, setting)
+    _, again = render_cached(PARTNET_DIR / "laptop_rotate_10211", scene_dir, setting)
+    assert first > 0 and again == 0.0
+    stamp_path = scene_dir / "bench_render.json"
+    stamp = json.loads(stamp_path.read_text())
+    assert stamp["renderer"] == RENDERER_VERSION
+    stamp["renderer"] = RENDERER_VERSION - 1
+    stamp_path.write_text(json.dumps(stamp))
+    _, old = render_cached(PARTNET_DIR / "laptop_rotate_10211", scene_dir, setting)
+    assert old > 0 and json.loads(stamp_path.read_text())["renderer"] == RENDERER_VERSION

@@ -43,7 +43,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sparseart.align.features import PLANAR_FRACTION, THRESHOLD_FRACTION, FeatureMatches, match_view_features, view_features
-from sparseart.align.geometric import GeometricEdges, view_mask_ids
+from sparseart.align.geometric import (MAX_FREE_SPACE_VIOLATION, NOISY_MAX_FREE_SPACE_VIOLATION, GeometricEdges,
+                                       view_mask_ids)
 from sparseart.align.noise import RHO_MAX, depth_roughness, estimate_rho, thresholds
 from sparseart.align.ransac import DEGENERATE_FRACTION, AlignmentError, Similarity, ransac_similarity, umeyama
 from sparseart.geometry.clouds import scene_size, spread, valid_points
@@ -782,7 +783,7 @@ def _finish(ctx: _Context, comps: _Components, reasons: dict[int, list[str]], se
     lap("solve")
     if not ctx.relative and ctx.geometry_fallback and all(f.camera is not None for f in frames):
         _geometry(frames, ctx.maps, ctx.clouds, poses, registered, info, n_start, ctx.size, ctx.seed, reasons,
-                  warnings)
+                  warnings, noisy=ctx.roughness > POLISH_MAX_ROUGHNESS)
     lap("geometry")
     for v in range(n):
         if v not in registered:
@@ -840,15 +841,18 @@ def _group_rho(pairs: list[PairMatches], views: list[int], poses: list[np.ndarra
     return estimate_rho(r, d, r < thresholds(d, size, RHO_MAX))
 
 
-def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed, reasons, warnings) -> None:
+def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed, reasons, warnings,
+              noisy: bool = False) -> None:
     """Metric views no feature merge reached: the geometric registration to a registered view of
     their state (best edge weight wins), composed with that view's pose. Plain fits first, round
     after round (a view placed by geometry can reach the views tried before it); the mask ids'
     search (:class:`~sparseart.align.geometric.GeometricEdges`) only when no plain fit places any
-    view, and then plain fits again from what it placed."""
+    view, and then plain fits again from what it placed. ``noisy`` (depth rougher than
+    ``POLISH_MAX_ROUGHNESS``): plain fits may see through ``NOISY_MAX_FREE_SPACE_VIOLATION``."""
     if len(registered) == len(frames):
         return
-    edges = GeometricEdges(frames, maps, clouds, seed, [view_mask_ids(f, m) for f, m in zip(frames, maps)])
+    edges = GeometricEdges(frames, maps, clouds, seed, [view_mask_ids(f, m) for f, m in zip(frames, maps)],
+                           NOISY_MAX_FREE_SPACE_VIOLATION if noisy else MAX_FREE_SPACE_VIOLATION)
     # the size of each state's own views (the other state's moved part would change it)
     sizes = {}
     for is_start in (True, False):

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from sparseart.bench import metrics
+from sparseart.datasets.raycast import RENDERER_VERSION
 from sparseart.datasets.realism import CLEAN, Realism
 
 METHOD_SPARSEART = "sparseart"
@@ -85,7 +86,7 @@ def render_cached(object_dir: str | Path, scene_dir: str | Path, setting: BenchS
 
     scene_dir = Path(scene_dir)
     stamp_path = scene_dir / "bench_render.json"
-    stamp = {"object": str(Path(object_dir).resolve()), "key": setting.render_key()}
+    stamp = {"object": str(Path(object_dir).resolve()), "key": setting.render_key(), "renderer": RENDERER_VERSION}
     if stamp_path.exists() and (scene_dir / "gt.json").exists():
         try:
             if json.loads(stamp_path.read_text()) == stamp:

@@ -17,6 +17,9 @@ from sparseart.datasets.meshes import RenderMesh, sample_texture
 KEY_LIGHT = np.array([0.35, -0.45, 0.82])
 FILL_LIGHT = np.array([-0.6, 0.5, 0.3])
 BACKGROUND = np.array([200, 200, 200], dtype=np.uint8)
+# Bumped whenever the same scene would render differently; cached bench renders stamped with
+# another version are rendered again. 2: coplanar duplicates resolved by triangle order.
+RENDERER_VERSION = 2
 # Triangles a ray meets within this relative depth of its first hit count as one surface
 # (coplanar duplicates; float32 intersection is good to ~1e-7 relative, decals sit ~1e-4 off).
 COPLANAR_RELATIVE_T = 1e-5
