@@ -455,3 +455,31 @@ def test_noisy_depth_views_of_a_plain_fridge_are_placed_by_geometry(tmp_path):
             true = reference @ np.asarray(camera)
             rotation = pose[:3, :3] / np.cbrt(np.linalg.det(pose[:3, :3]))
             assert np.degrees(Rotation.from_matrix(rotation @ true[:3, :3].T).magnitude()) < 3.0
+
+
+def test_the_labelers_motions_follow_the_static_polish():
+    """A motion found before the end cloud moved by T maps a start point onto the end point that now
+    lies at T of it: initial and alternative motions become T @ M (the fit starts from them)."""
+    from scipy.spatial.transform import Rotation
+
+    from sparseart.align.static import carried
+    from sparseart.types import PartLabels, PartSpec
+
+    rng = np.random.default_rng(0)
+    motion = np.eye(4)
+    motion[:3, :3] = Rotation.from_rotvec([0.0, 0.0, 0.6]).as_matrix()
+    motion[:3, 3] = [0.1, -0.2, 0.05]
+    polish = np.eye(4)
+    polish[:3, :3] = Rotation.from_rotvec([0.03, -0.05, 0.02]).as_matrix()
+    polish[:3, 3] = [0.02, 0.01, -0.03]
+    labels = PartLabels(parts=[PartSpec(id=0, role="static"), PartSpec(id=1, role="movable")],
+                        start_part=np.zeros(3, dtype=np.int64), end_part=np.zeros(3, dtype=np.int64),
+                        initial_motion={1: motion}, alternative_motions={1: [np.eye(4)]})
+    start = rng.normal(size=(20, 3))
+    end = start @ motion[:3, :3].T + motion[:3, 3]
+    end_polished = end @ polish[:3, :3].T + polish[:3, 3]
+    moved = carried(labels, polish)
+    follow = moved.initial_motion[1]
+    np.testing.assert_allclose(start @ follow[:3, :3].T + follow[:3, 3], end_polished, atol=1e-12)
+    np.testing.assert_allclose(moved.alternative_motions[1][0], polish, atol=1e-12)
+    assert labels.initial_motion[1] is motion      # the input labels are left as they were
