@@ -3,7 +3,10 @@ robust ICP of the labelled static part (part 0).
 
 ``polish_on_static`` refines an alignment that features or a reconstructor already gave (ICP from
 identity); ``align_on_static`` registers states that were never aligned, seeded by the labeler's
-static motion. Both return the moved end cloud (labels unchanged) and append warnings.
+static motion. Both return the moved end cloud and append warnings; ``polish_on_static`` also
+returns the labels with their start -> end motions carried into the polished frame (the
+unaligned labelling that seeds ``align_on_static`` is done again afterwards, so its labels are not
+carried).
 
 With mask ids that name parts in both states, ``align_on_static`` lets them vouch for the
 registration as the geometric view fallback does (:mod:`sparseart.align.geometric`): a box-like
