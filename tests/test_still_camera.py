@@ -153,13 +153,16 @@ def _camera_points(result, scene_dir: Path, index: int) -> np.ndarray:
 
 
 @requires_twins
-def test_an_unposed_textureless_desk_without_masks_is_aligned_through_its_still_camera(tmp_path):
+def test_an_unposed_textureless_desk_without_masks_is_aligned(tmp_path):
     """Four black drawers in a desk, unposed, no masks, each view's camera kept between the
-    states: SIFT finds 3 matches across the states and the static part's ICP slid the end state
-    5.4 deg off, so no drawer was found (0 of 4 within 10 deg). Through the camera that did not
-    move the states are aligned to < 0.1 deg and 0.3 % of the object. (How many drawers the
-    maskless labeler then separates still depends on the frame: 2 or 4 of 4, whichever still view
-    is used; the bench reports it.)"""
+    states. On renders whose coplanar duplicates flickered (before RENDERER_VERSION 2) SIFT found 3
+    matches across the states and the still camera aligned them. On honest renders it finds 38,
+    partly on the drawers' handles, and the states come out 4.3 deg off: no segment stays put, and
+    the maskless labeler took the whole desk for moving parts (two drawers unmatched, two fitted as
+    turns 85-89 deg off). A whole-scene ICP that moves the states by more than
+    STATE_POLISH_MIN_DEG says the features were off; its correction is taken before labelling.
+    The states are then aligned to < 0.1 deg and 0.3 % of the object, and all four drawers slide
+    within 5 deg. (The still camera keeps its test: the cabinet below.)"""
     import sparseart
     from sparseart.bench.evaluate import evaluate
     from sparseart.datasets.partnet import render_partnet_scene
@@ -168,11 +171,13 @@ def test_an_unposed_textureless_desk_without_masks_is_aligned_through_its_still_
     scene_dir = tmp_path / "desk"
     gt = render_partnet_scene(TWINS_DIR / "drawer_32761_multi", scene_dir, views=3, seed=0, posed=False)
     result = sparseart.run(scene_dir, use_masks=False)
-    assert result.registration["states"]["method"] == "still camera"
+    assert any("feature alignment of the states was 4." in w for w in result.warnings)
     degrees, shift = _alignment_error(result, gt, scene_dir)
     assert degrees < 0.1 and shift < 0.003, (degrees, shift)
     rows = evaluate(result, load_scene(scene_dir), gt)
-    assert sum(row["type_correct"] and row["axis_deg"] < 10.0 for row in rows) >= 2, rows
+    assert len(rows) == 4
+    for row in rows:
+        assert row["type_correct"] and row["axis_deg"] < 5.0, row
 
 
 @requires_twins
