@@ -33,11 +33,14 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from sparseart.align.depth_ratio import DepthRatio, match_end_depth
+from sparseart.align.features import THRESHOLD_FRACTION
 from sparseart.align.graph import SceneRegistration, register_scene
 from sparseart.align.ransac import AlignmentError
 from sparseart.align.states import align_states
 from sparseart.align.still import place_through_twins, still_camera, still_pairs
-from sparseart.geometry.clouds import transform_pointmap
+from sparseart.geometry.clouds import scene_size, transform_pointmap, valid_points
+from sparseart.geometry.icp import icp_polish
+from sparseart.geometry.transforms import rotation_angle
 from sparseart.lift.scene_lift import LiftedScene
 from sparseart.types import Pointmap, Scene
 
@@ -280,11 +283,6 @@ def _polish_states(pointmaps: dict[str, list], poses: dict[str, list], report: d
     left the end camera's error as it was (0.02-0.41 deg before, 0.01-0.66 after), and the
     labelled static part is polished later anyway (:mod:`sparseart.align.static`).
     O((N + M) log(N + M)) for the states' N + M points."""
-    from sparseart.align.features import THRESHOLD_FRACTION
-    from sparseart.geometry.clouds import scene_size, valid_points
-    from sparseart.geometry.icp import icp_polish
-    from sparseart.geometry.transforms import rotation_angle
-
     clouds = {state: [valid_points(p) for p in pointmaps[state]] for state in STATES}
     if not all(any(len(c) for c in clouds[state]) for state in STATES):
         return

@@ -486,11 +486,14 @@ def _fallback_base(moving_pairs: list[tuple[int, int, np.ndarray, float]], start
     if still or aligned_start is None:
         return max(still or moving_pairs, key=lambda p: len(start_groups[p[0]].indices))
 
-    def travel(pair) -> float:
-        points = aligned_start.points[start_groups[pair[0]].indices]
-        return float(np.median(np.linalg.norm(apply(pair[2], points) - points, axis=1)))
+    return min(moving_pairs, key=lambda pair: _travel(pair, aligned_start, start_groups))
 
-    return min(moving_pairs, key=travel)
+
+def _travel(pair: tuple[int, int, np.ndarray, float], start: LabelledCloud, start_groups: list[Group]) -> float:
+    """Median distance the pair's start-group points move under its (4, 4) motion (scene units).
+    Unlike the motion's translation it does not depend on where the frame's origin lies. O(N)."""
+    points = start.points[start_groups[pair[0]].indices]
+    return float(np.median(np.linalg.norm(apply(pair[2], points) - points, axis=1)))
 
 
 def _layers_without_masks(start: LabelledCloud, end: LabelledCloud, start_segments: np.ndarray,
@@ -544,11 +547,10 @@ def _assign_parts(start: LabelledCloud, end: LabelledCloud, start_segments: np.n
         least = aligned and not posed
         base = _fallback_base(moving_pairs, start_groups, identity_scores or {}, start if least else None)
         angle = motion_size(base[2])[0]
-        # how far the base's own points travel: the motion's translation alone depends on where the
-        # frame's origin lies (a 4.2 deg error of a feature alignment about a camera 2.6 m away
-        # shifted a desk's origin by 0.19, its points by a median 0.04)
-        base_points = start.points[start_groups[base[0]].indices]
-        shift = float(np.median(np.linalg.norm(apply(base[2], base_points) - base_points, axis=1)))
+        # how far the base's own points travel, not the motion's translation (a 4.2 deg error of a
+        # feature alignment about a camera 2.6 m away shifted a desk's origin by 0.19, its points
+        # by a median 0.04)
+        shift = _travel(base, start, start_groups)
         if (identity_scores or {}).get((base[0], base[1]), 0.0) >= STILL_EXPLAINS_SHARE * base[3]:
             # Noisy depth lowers every overlap; a pair that staying put explains nearly as well as
             # its registered motion did not move (measured: a laptop base at 1 % depth noise,
