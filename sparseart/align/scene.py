@@ -48,6 +48,10 @@ STATES = ("start", "end")
 # A whole-scene ICP that moves a feature alignment of the states by more than this says the
 # alignment was off (:func:`_polish_states`); smaller corrections are left to the static polish.
 STATE_POLISH_MIN_DEG = 2.0
+# The state polish first probes on an even subsample of at most STATE_PROBE_POINTS points per state;
+# only a probe that moves the states by more than STATE_PROBE_MIN_DEG runs the full-resolution ICP.
+STATE_PROBE_POINTS = 20000
+STATE_PROBE_MIN_DEG = 1.0
 
 
 @dataclass
@@ -287,7 +291,11 @@ def _polish_states(pointmaps: dict[str, list], poses: dict[str, list], report: d
     if not all(any(len(c) for c in clouds[state]) for state in STATES):
         return
     start, end = (np.concatenate([c for c in clouds[state] if len(c)]) for state in STATES)
-    correction = icp_polish(end, start, np.eye(4), THRESHOLD_FRACTION * scene_size(start))
+    distance = THRESHOLD_FRACTION * scene_size(start)
+    coarse = icp_polish(end, start, np.eye(4), distance, max_points=STATE_PROBE_POINTS)
+    if coarse is None or np.degrees(rotation_angle(coarse[:3, :3])) <= STATE_PROBE_MIN_DEG:
+        return
+    correction = icp_polish(end, start, coarse, distance)
     if correction is None:
         return
     correction = np.asarray(correction, dtype=np.float64)
