@@ -48,10 +48,13 @@ STATES = ("start", "end")
 # A whole-scene ICP that moves a feature alignment of the states by more than this says the
 # alignment was off (:func:`_polish_states`); smaller corrections are left to the static polish.
 STATE_POLISH_MIN_DEG = 2.0
-# The state polish first probes on an even subsample of at most STATE_PROBE_POINTS points per state;
-# only a probe that moves the states by more than STATE_PROBE_MIN_DEG runs the full-resolution ICP.
+# The state polish first probes on an even subsample of at most STATE_PROBE_POINTS points per state
+# (0.6-4.5 s on realistic scenes, where the full ICP took 24-37 s); only a probe that moves the
+# states by more than STATE_PROBE_MIN_DEG runs the full-resolution ICP from the probe's answer.
+# Measured on 32 realistic renders: probes 0.0-1.26 deg, their full ICPs < 0.2 deg; the desk's
+# probe 4.31 deg, its full ICP 4.31.
 STATE_PROBE_POINTS = 20000
-STATE_PROBE_MIN_DEG = 1.0
+STATE_PROBE_MIN_DEG = 1.5
 
 
 @dataclass
