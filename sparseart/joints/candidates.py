@@ -284,6 +284,10 @@ FRONT_MAX_TILT_DEG = 30.0       # a free slide farther from the face normal than
 # FRONT_MAX_TILT_DEG with the faces read within this looser agreement (within it: the usual one).
 UNSURE_MAX_TILT_DEG = 60.0
 UNSURE_STATES_AGREE_DEG = 10.0
+# Within the usual tilt window a face whose normals were read FRONT_STATES_AGREE_DEG to
+# UNSURE_STATES_AGREE_DEG apart is held when its slide fits within this ratio of the free slide's
+# residual (the data cannot tell the two apart; a rival slide counts alike at RIVAL_SLIDE_RESIDUAL_RATIO).
+LOOSE_FACE_RESIDUAL_RATIO = 1.1
 
 
 def front_normal(part_start: np.ndarray, part_end: np.ndarray, direction: np.ndarray, seed: int = 0,
@@ -457,17 +461,18 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
     if joint.type != "prismatic" or not joint.distance:
         return joint
     unsure = float(joint.uncertainty.get("axis_deg", 0.0)) > MAX_AXIS_SIGMA_DEG
-    front = front_normal(part_start, part_end, joint.axis, seed, start_views, end_views,
-                         UNSURE_STATES_AGREE_DEG if unsure else FRONT_STATES_AGREE_DEG)
+    front = front_normal(part_start, part_end, joint.axis, seed, start_views, end_views, UNSURE_STATES_AGREE_DEG)
     if front is None:
         return joint
     normal, disagreement = front
     tilt = axis_angle_deg(normal, joint.axis)
     if tilt < FRONT_MIN_TILT_DEG or tilt > (UNSURE_MAX_TILT_DEG if unsure else FRONT_MAX_TILT_DEG):
         return joint
-    # the looser reading is for the faces beyond the usual window only
-    if disagreement > (FRONT_STATES_AGREE_DEG if tilt <= FRONT_MAX_TILT_DEG else UNSURE_STATES_AGREE_DEG):
-        return joint
+    # a face read looser than FRONT_STATES_AGREE_DEG is held only where the data cannot tell it
+    # from the free slide (LOOSE_FACE_RESIDUAL_RATIO), except beyond the usual tilt window, which
+    # is open to unsure slides only
+    loose = disagreement > FRONT_STATES_AGREE_DEG and tilt <= FRONT_MAX_TILT_DEG
+    ratio = LOOSE_FACE_RESIDUAL_RATIO if loose else FRONT_MAX_RESIDUAL_RATIO
     seed_motion = np.eye(4)
     seed_motion[:3, 3] = normal * float(joint.distance) * float(np.cos(np.radians(tilt)))
     held_fit = dict(joint_type="prismatic", initial_transform=seed_motion, slide_axis=normal, **fit_options)
@@ -475,7 +480,7 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
         held = fit_joint(part_start, part_end, uncertainty=False, **held_fit)
     except ValueError:
         return joint
-    if held.residual > FRONT_MAX_RESIDUAL_RATIO * joint.residual:
+    if held.residual > ratio * joint.residual:
         return joint            # the data tell the free slide from the face's normal: keep the data's answer
     # the same fit again with its full sigma (fit_joint remembers the model fit: same point estimate)
     held = fit_joint(part_start, part_end, **held_fit)
