@@ -238,23 +238,3 @@ def test_named_mask_ids_keep_touching_parts_apart_and_unpaired():
     numbered = _two_view_cloud("start", [(slab(-2.0), 0, 1), (slab(0.0), 0, 2), (slab(3.0), 0, 3),
                                          (slab(3.0), 1, 1), (slab(-2.0), 1, 2), (slab(0.0), 1, 3)])
     assert named_mask_ids(numbered, end) == frozenset()
-
-
-def test_left_over_groups_follow_their_named_mask_ids_part():
-    """A thin part's segments of one mask id in different views may not merge (a wire rack under
-    noisy depth): the left-over group follows the one paired group of its state holding that id
-    alone. A group whose id two paired groups hold (a merged mask) names no one part and stays
-    out, as do groups of several ids, groups already attached and paired groups themselves."""
-    from sparseart.labelers.correspondence import Group
-    from sparseart.labelers.rules import _group_names, _named_extras
-
-    cloud = _two_view_cloud("start", [(np.zeros((5, 3)), 0, 3), (np.ones((5, 3)), 1, 3), (np.ones((5, 3)), 1, 9)])
-    group = Group(segments=[3, 65539, 65545], indices=np.arange(15))
-    assert _group_names(cloud, group, frozenset({3, 4})) == {3}
-    start_names = [frozenset({1}), frozenset({3}), frozenset({3}), frozenset({4}), frozenset({4}), frozenset({3, 4})]
-    end_names = [frozenset({1}), frozenset({3}), frozenset({4}), frozenset({4}), frozenset({3}), frozenset({4})]
-    chosen = [(0, 0), (1, 1), (3, 2), (4, 3)]       # id 4 is paired twice (a merged mask)
-    found = _named_extras((start_names, end_names), chosen, attached=set())
-    assert sorted(found) == [("end", 4, 1), ("start", 2, 1)]
-    assert _named_extras((start_names, end_names), chosen, attached={("start", 2)}) == [("end", 4, 1)]
-    assert _named_extras(None, chosen, attached=set()) == []

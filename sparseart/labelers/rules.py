@@ -190,9 +190,7 @@ class RuleBasedLabeler:
         moving = {key for key, c in candidates.items() if not _is_static(c.transform, c.i, work_start, start_groups, radius)}
         assignment = assign(candidates, len(start_groups), len(end_groups), diameter, config.match_min_score, moving)
         pairs = [(i, j, candidates[(i, j)].transform, candidates[(i, j)].score) for i, j in assignment.pairs]
-        names = (([_group_names(work_start, g, named) for g in start_groups],
-                  [_group_names(work_end, g, named) for g in end_groups]) if named else None)
-        extras = _extras(context, candidates, assignment.pairs, start_groups, end_groups, config, warnings, names)
+        extras = _extras(context, candidates, assignment.pairs, start_groups, end_groups, config, warnings)
         layers = None
         if not has_masks:
             layers = _layers_without_masks(work_start, work_end, start_segments, end_segments, candidates,
@@ -405,13 +403,6 @@ def _merge_across_frames(cloud: LabelledCloud, segments: np.ndarray, radius: flo
     return result
 
 
-def _group_names(cloud: LabelledCloud, group: Group, named: frozenset[int]) -> frozenset[int]:
-    """The named mask ids among a group's segments (``cloud.segment_source``: segment -> (image,
-    mask id))."""
-    return frozenset(cloud.segment_source[s][1] for s in group.segments
-                     if s in cloud.segment_source and cloud.segment_source[s][1] in named)
-
-
 def _group_sample(group: Group, limit: int, rng: np.random.Generator) -> np.ndarray:
     """Indices (into the state's cloud) of at most ``limit`` random points of a group."""
     return group.indices[random_subset(len(group.indices), limit, rng)]
@@ -440,13 +431,11 @@ def _is_static(transform: np.ndarray, i: int, start: LabelledCloud, start_groups
 
 
 def _extras(context: PairContext, candidates: dict, chosen: list[tuple[int, int]], start_groups: list[Group],
-            end_groups: list[Group], config: RuleLabelerConfig, warnings: list[str],
-            names: tuple[list[frozenset], list[frozenset]] | None = None) -> list[tuple[str, int, int]]:
+            end_groups: list[Group], config: RuleLabelerConfig, warnings: list[str]) -> list[tuple[str, int, int]]:
     """Groups left over by the one-to-one pairing (a surface seen in two views that did not merge,
     an over-segmented or fragmented part) follow the part of their best-scoring partner, when that
     partner's own pairing motion carries them onto it too (one rigid part, one motion; a look-alike
-    part that moved differently stays out); the rest follow their mask id's part
-    (:func:`_named_extras`, ``names``: each start / end group's named mask ids)."""
+    part that moved differently stays out)."""
     scores = np.zeros((len(start_groups), len(end_groups)))
     for (i, j), candidate in candidates.items():
         scores[i, j] = candidate.score
@@ -470,8 +459,6 @@ def _extras(context: PairContext, candidates: dict, chosen: list[tuple[int, int]
         if pair_score(context, i, j, motion) >= config.match_min_score:
             extras.append(("end", j, i))
     attached = {(state, k) for state, k, _ in extras}
-    extras.extend(_named_extras(names, chosen, attached))
-    attached = {(state, k) for state, k, _ in extras}
     unmatched = ([f"start group of {len(g.indices)} points" for k, g in enumerate(start_groups)
                   if k not in paired_start and ("start", k) not in attached] +
                  [f"end group of {len(g.indices)} points" for k, g in enumerate(end_groups)
@@ -480,37 +467,6 @@ def _extras(context: PairContext, candidates: dict, chosen: list[tuple[int, int]
         warnings.append("seen in one state only (occluded, moved out of view, or not rigid): "
                         + ", ".join(unmatched) + "; left unassigned")
     return extras
-
-
-def _named_extras(names: tuple[list[frozenset], list[frozenset]] | None, chosen: list[tuple[int, int]],
-                  attached: set[tuple[str, int]]) -> list[tuple[str, int, int]]:
-    """Left-over groups that carry one named mask id (:func:`~.correspondence.named_mask_ids`)
-    follow the one paired group of their state with that id alone: ("start"|"end", group, the
-    paired group's partner in the other state).
-
-    Why: a thin part's segments of one id in different views overlap too little to merge (wire
-    racks under noisy depth: segment points a view apart), and a sparse, noisy group rarely lays
-    onto its partner under the partner's motion, so the score test of :func:`_extras` leaves it
-    out -- measured on a realistic oven, 170 of a rack's 309 start points. The mask id already says
-    which part they are; the pairing of the part is not changed by them (they are attached after
-    it). An id held by several paired groups of the state (a merged mask) names no one part and
-    attaches nothing. O(G)."""
-    if names is None:
-        return []
-    found = []
-    for k, state in enumerate(("start", "end")):
-        partner_of = {pair[k]: pair[1 - k] for pair in chosen}
-        holders: dict[int, list[int]] = {}
-        for group in partner_of:
-            if len(names[k][group]) == 1:
-                holders.setdefault(next(iter(names[k][group])), []).append(group)
-        for group, own in enumerate(names[k]):
-            if group in partner_of or (state, group) in attached or len(own) != 1:
-                continue
-            paired = holders.get(next(iter(own)), [])
-            if len(paired) == 1:
-                found.append((state, group, partner_of[paired[0]]))
-    return found
 
 
 def _fallback_base(moving_pairs: list[tuple[int, int, np.ndarray, float]], start_groups: list[Group],
