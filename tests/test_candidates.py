@@ -391,3 +391,44 @@ def test_a_slide_that_does_not_fix_its_direction_takes_its_face_normal_from_fart
     beyond = _slide([0.0, np.sin(np.radians(70.0)), np.cos(np.radians(70.0))], 0.6)   # slides within the face
     beyond.residual, beyond.uncertainty["axis_deg"] = 1.05 * normal_residual, 15.0
     assert along_front_normal(beyond, start, end, {}) is beyond
+
+
+def test_a_small_turn_stuck_in_its_basin_gives_way_to_a_slide_along_the_body():
+    """A wire rack slid out of a box along the box's axis, whose every fit came out a 12 deg turn
+    (a stuck basin: residual 1.3 x the true slide's): slides along the box's Manhattan axes are
+    fitted, and the one along the true axis beats the turn. A turn of 40 deg, a best fit that
+    is a slide, or no body frame: nothing is tried."""
+    from sparseart.geometry.planes import manhattan_frame
+    from sparseart.joints.candidates import body_slides_beating_a_small_turn
+    from sparseart.joints.fit import fit_joint
+
+    rng = np.random.default_rng(11)
+    wires = np.concatenate([np.column_stack([np.full(60, x), np.zeros(60), rng.uniform(-0.25, 0.25, 60)])
+                            for x in np.linspace(-0.3, 0.3, 13)])
+    start = wires + rng.normal(scale=0.002, size=wires.shape)
+    slide = np.array([0.0, 0.0, 0.2])
+    end = wires + slide + rng.normal(scale=0.002, size=wires.shape)
+    faces = [np.column_stack([rng.uniform(-0.5, 0.5, 1500), rng.uniform(-0.4, 0.4, 1500), np.full(1500, z)])
+             for z in (-0.3, 0.3)]
+    faces += [np.column_stack([np.full(1500, x), rng.uniform(-0.4, 0.4, 1500), rng.uniform(-0.3, 0.3, 1500)])
+              for x in (-0.5, 0.5)]
+    body = np.concatenate(faces)
+    turn = Rotation.from_euler("xyz", [5.0, 40.0, 0.0], degrees=True).as_matrix()
+    frame = manhattan_frame(body @ turn.T, 0.0)          # a turned box: its axes, not the world's
+    start, end, truth = start @ turn.T, end @ turn.T, turn @ (slide / 0.2)
+
+    def attempt(kind, seed):
+        return fit_joint(start, end, joint_type=kind, initial_transform=seed, uncertainty=False)
+
+    true_residual = fit_joint(start, end, joint_type="prismatic", slide_axis=truth, uncertainty=False).residual
+    stuck = _estimate("revolute", 1.3 * true_residual, angle_deg=12.0)
+    found = body_slides_beating_a_small_turn([stuck], start, end, frame, attempt)
+    assert found and all(f.type == "prismatic" and f.residual < stuck.residual for f in found)
+    best = min(found, key=lambda f: f.residual)
+    assert np.degrees(np.arccos(min(1.0, abs(best.axis @ truth)))) < 1.0
+    assert any("body's axis" in w for w in best.warnings)
+    assert body_slides_beating_a_small_turn([_estimate("revolute", 1.3 * true_residual, angle_deg=40.0)],
+                                            start, end, frame, attempt) == []
+    assert body_slides_beating_a_small_turn([stuck, _estimate("prismatic", true_residual)], start, end, frame,
+                                            attempt) == []
+    assert body_slides_beating_a_small_turn([stuck], start, end, None, attempt) == []
