@@ -7,9 +7,8 @@ import numpy as np
 import pytest
 
 from sparseart.labelers.consistency import CONSISTENT, HIDDEN, VIOLATION, state_views, visible_fraction
-from sparseart.geometry.planes import manhattan_frame
-from sparseart.labelers.correspondence import (Assignment, Group, PairCandidate, _Screw, assign, distinct_by_masks,
-                                               mask_agreement, prefer_small_turns)
+from sparseart.labelers.correspondence import (Assignment, Group, PairCandidate, _Screw, assign, manhattan_frame,
+                                               distinct_by_masks, mask_agreement, prefer_small_turns)
 from sparseart.labelers.rules import _downsample
 from sparseart.types import Camera, Frame, LabelledCloud, Scene
 

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from sparseart.geometry.clouds import median_spacing, rms_radius, slab_axes
-from sparseart.geometry.planes import best_by_truncated_chamfer, hinge_turns, manhattan_frame, ransac_plane
+from sparseart.geometry.planes import best_by_truncated_chamfer, hinge_turns, ransac_plane
 from sparseart.geometry.sampling import random_subset
 from sparseart.geometry.transforms import axis_angle_deg
 from sparseart.joints.clean import estimate_normals
@@ -46,7 +46,6 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
     # how far the static part's two states disagree beyond sampling: the joint's frame error
     frame_error = frame_misfit(start.points[static_mask], end.points[labels.end_part == 0],
                                seed=(config or FitConfig()).seed)
-    body_frame = manhattan_frame(static_points, 0.0) if static_points is not None else None
     results = []
     inputs: dict[int, tuple[tuple[np.ndarray, np.ndarray], dict]] = {}   # part id -> points, fit options
     free_type: set[int] = set()
@@ -71,8 +70,7 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
         try:
             joint = fit_part(*part_points, joint_type=part_type, seeds=seeds, static_points=static_points,
                              support_points=support_points, type_prior=labels.type_prior.get(spec.id),
-                             views=(start.frame_index[start_mask], end.frame_index[end_mask]),
-                             body_frame=body_frame, **fit_options)
+                             views=(start.frame_index[start_mask], end.frame_index[end_mask]), **fit_options)
         except ValueError as error:
             warnings.append(f"part {spec.id}: joint fit failed: {error}")
             continue
@@ -103,8 +101,7 @@ def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndar
              config: FitConfig | None = None, support_points: np.ndarray | None = None,
              start_confidence: np.ndarray | None = None, end_confidence: np.ndarray | None = None,
              frame_error: tuple[float, float] | None = None, type_prior: str | None = None,
-             views: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
-             body_frame: np.ndarray | None = None) -> JointEstimate:
+             views: tuple[np.ndarray | None, np.ndarray | None] = (None, None)) -> JointEstimate:
     """Fit one part's joint from every seed motion (the labeler's, its tied alternatives, and for
     a slab the mirror of the best fit) and keep the one :func:`choose_fit` prefers.
 
@@ -114,9 +111,7 @@ def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndar
     motion (``PartLabels.type_prior``); "prismatic" (it turned by < 2 deg) skips the hinge seed,
     a revolute hypothesis from the part's planes that a slide never needs (and that under noise
     fitted a slide as a 9.5 deg flap; ~0.14 s per part). views: the view index of each start /
-    end point (:func:`along_front_normal` reads the face per view). body_frame: (3, 3) axes
-    (columns) of the static body's Manhattan frame (:func:`~sparseart.geometry.planes.manhattan_frame`),
-    for :func:`body_slides_beating_a_small_turn`.
+    end point (:func:`along_front_normal` reads the face per view).
     Raises ValueError (from the fitter) when no seed gives a fit.
     """
     colours = dict(start_colors=start_colors, end_colors=end_colors, config=config,
@@ -162,8 +157,6 @@ def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndar
         # a slide far worse than the turns explains nothing they do not (a door's points away from its hinge)
         turns = min(c.residual for c in candidates)
         candidates.extend(f for f in detached if f.residual <= COMPARABLE_RESIDUAL_RATIO * turns)
-    if joint_type != "revolute":
-        candidates.extend(body_slides_beating_a_small_turn(candidates, part_start, part_end, body_frame, attempt))
     best = min(candidates, key=lambda c: c.residual)
     mirrored = mirror_seed(best, part_start)
     if mirrored is not None and joint_type != "prismatic":
@@ -192,49 +185,6 @@ def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndar
     widen_for_rival_slides(complete, [c for c in candidates + slide_fits if c is not chosen])
     widen_for_tied_hinges(complete, chosen.diagnostics.get("tied_hinge_deg"))
     return along_front_normal(complete, part_start, part_end, colours, config.seed if config else 0, *views)
-
-
-SMALL_TURN_DEG = 30.0   # a best fit turning by less than this is also tried as slides along the body's axes
-
-
-def body_slides_beating_a_small_turn(candidates: list[JointEstimate], part_start: np.ndarray, part_end: np.ndarray,
-                                     body_frame: np.ndarray | None, attempt) -> list[JointEstimate]:
-    """Slides along the static body's Manhattan axes (``body_frame`` (3, 3), columns) that fit
-    better than the best candidate, when that one is a turn by less than ``SMALL_TURN_DEG``.
-
-    Why: a thin or sparsely seen part that slid (a wire rack) is registered by a small turn as
-    easily as by its slide, and every seed then fits a turn; the slide basin is never entered.
-    Slides in furniture and appliances follow the body's own axes, read off its surfaces'
-    normals (principal axes of the points are arbitrary on a near-cubic body: measured on a
-    realistic oven, its normals' axis 3.9 deg from the racks' slide, its principal axis 8.7).
-    Each seed slides by the part's centroid shift, along one axis with the shift's sign;
-    ``attempt(kind, seed)`` fits it. A slide is returned only when its residual is below the best
-    turn's; then :func:`plausible_fits` and :func:`choose_fit` decide as for any slide. Measured
-    on that oven's racks (seed 2): two of four turns (12 and 22 deg, 85 deg off) are beaten by
-    body-axis slides 4.5 and 5.4 deg off (residual 0.0545 against 0.0564, 0.0315 against 0.0321).
-    part_start (N, 3), part_end (M, 3) float64, one frame. O(3 prismatic fits) when it runs."""
-    if body_frame is None or not candidates:
-        return []
-    best = min(candidates, key=lambda c: c.residual)
-    if best.type != "revolute" or np.degrees(abs(best.angle or 0.0)) >= SMALL_TURN_DEG:
-        return []
-    shift = part_end.mean(axis=0) - part_start.mean(axis=0)
-    length = float(np.linalg.norm(shift))
-    if not length > 0:
-        return []
-    found = []
-    for axis in np.asarray(body_frame, dtype=np.float64).T:
-        seed = np.eye(4)
-        seed[:3, 3] = (axis if float(axis @ shift) >= 0 else -axis) * length
-        try:
-            slide = attempt("prismatic", seed)
-        except ValueError:
-            continue
-        if slide.residual < best.residual:
-            slide.warnings.append(f"fitted as a slide along the static body's axis: it explains the points better "
-                                  f"than the best turn ({np.degrees(abs(best.angle or 0.0)):.1f} deg)")
-            found.append(slide)
-    return found
 
 
 RIVAL_SLIDE_RESIDUAL_RATIO = 1.1  # another slide fitting this close to the chosen one is a rival ...
