@@ -451,8 +451,12 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
     up to ``UNSURE_STATES_AGREE_DEG`` of disagreement and taken up to ``UNSURE_MAX_TILT_DEG``
     (measured on a realistic storage drawer: free slide 35 deg off with a rival 14.6 deg away at
     +1 %, the face 33.9 deg from it with its normals 6.7 deg apart; held 6.5 deg off). Within
-    the usual ``FRONT_MAX_TILT_DEG`` the usual agreement holds: a robot-view desk drawer whose
-    free slide (1.0 deg off, sigma 6.1) lay 7.5 deg from a face read 5-10 deg apart went to 6.7 deg.
+    the usual ``FRONT_MAX_TILT_DEG`` a face read up to ``UNSURE_STATES_AGREE_DEG`` apart is held
+    too, but beyond ``FRONT_STATES_AGREE_DEG`` only when its slide fits within
+    ``LOOSE_FACE_RESIDUAL_RATIO`` of the free slide's residual: the data then cannot tell the two
+    apart, and the drawer's physics can (measured on realistic renders of a table drawer: faces
+    read 5.0 and 5.8 deg apart, 6.4 and 2.5 deg off, held at 1.085 and 1.029 x, where the free
+    slides were 11.5 and 10.2 deg off; 2026-11-27, ``benchmarks/results/realistic/state_probe/``).
     The held fit's axis sigma gains the normals' disagreement (half the widest angle between
     them, in quadrature), and ``diagnostics["free_slide"]`` keeps the free fit's axis and tilt.
     ``fit_options``: the keyword arguments of the free fit (colours, config, confidences, frame
