@@ -329,6 +329,28 @@ def test_drawer_slides_along_the_body_axis_without_masks(tmp_path):
     assert len(rows) == 1 and rows[0]["type_correct"] and rows[0]["axis_deg"] < 2.0, rows
 
 
+@pytest.mark.skipif(not (PARTNET_DIR / "drawer_31249").is_dir(), reason=f"drawer_31249 not found in {PARTNET_DIR}")
+def test_a_drawer_front_read_loosely_holds_the_slide_where_the_data_cannot_tell(tmp_path):
+    """The table's drawer on the realistic bench render (seed 3: warped, noisy depth, ragged masks,
+    an arm on it): the free slide comes out 10.2 deg off, its front's normals read 5.8 deg apart
+    (beyond the 5 deg of a firm reading) and 2.5 deg off; the slide along them fits at 1.03 x the
+    free residual, so the data cannot tell them apart and the front is held."""
+    import sparseart
+    from sparseart.bench.evaluate import evaluate
+    from sparseart.bench.grid import grid_settings
+    from sparseart.bench.objects import render_cached
+    from sparseart.io.scene import load_scene
+
+    setting = next(s for s in grid_settings(3)[0] if s.name == "realistic")
+    scene_dir = tmp_path / "drawer"
+    gt, _ = render_cached(PARTNET_DIR / "drawer_31249", scene_dir, setting)
+    result = sparseart.run(scene_dir, seed=3)
+    rows = evaluate(result, load_scene(scene_dir), gt)
+    assert len(rows) == 1 and rows[0]["type_correct"] and rows[0]["axis_deg"] < 5.0, rows
+    joint = next(joint for _, joint in result.joints)
+    assert joint.diagnostics["free_slide"]["face_states_deg"] > 5.0
+
+
 def _robot_run(tmp_path, name: str, setting_name: str, seed: int = 0):
     """Render PartNet object ``name`` under bench setting ``setting_name`` (one posed view per
     state, realism knobs; render and run ``seed`` as the bench's) and run it without masks:
