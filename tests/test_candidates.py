@@ -397,7 +397,8 @@ def test_a_face_read_loosely_is_held_only_where_the_data_cannot_tell_it_from_the
     """A drawer front read 7 deg apart in its two states (smooth depth warps tilt each state's
     face differently): beyond FRONT_STATES_AGREE_DEG, so the face is held only when its slide
     fits within LOOSE_FACE_RESIDUAL_RATIO (1.1) of the free slide's residual -- at 1.05 it is, at
-    1.15 (which a face read within 5 deg would take, up to 1.2) the free slide stays."""
+    1.15 (which a face read within 5 deg would take, up to 1.2) the free slide stays -- and the
+    free slide lies outside the reading's spread (20 deg off: held; 4 deg off: kept)."""
     from sparseart.joints.candidates import FRONT_STATES_AGREE_DEG, LOOSE_FACE_RESIDUAL_RATIO, along_front_normal
     from sparseart.joints.fit import fit_joint
 
@@ -417,3 +418,7 @@ def test_a_face_read_loosely_is_held_only_where_the_data_cannot_tell_it_from_the
     apart = _slide(free_axis, 0.21)
     apart.residual = held_residual / 1.15
     assert along_front_normal(apart, start, end, {}) is apart
+    # a free slide within the reading's spread (4 deg from the mean normal < 7 deg): kept
+    within = _slide(Rotation.from_rotvec(np.radians(4.0) * np.array([0.0, 1.0, 0.0])).apply(mean_normal), 0.2)
+    within.residual = held_residual / 1.05
+    assert along_front_normal(within, start, end, {}) is within

@@ -453,10 +453,13 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
     +1 %, the face 33.9 deg from it with its normals 6.7 deg apart; held 6.5 deg off). Within
     the usual ``FRONT_MAX_TILT_DEG`` a face read up to ``UNSURE_STATES_AGREE_DEG`` apart is held
     too, but beyond ``FRONT_STATES_AGREE_DEG`` only when its slide fits within
-    ``LOOSE_FACE_RESIDUAL_RATIO`` of the free slide's residual: the data then cannot tell the two
-    apart, and the drawer's physics can (measured on realistic renders of a table drawer: faces
-    read 5.0 and 5.8 deg apart, 6.4 and 2.5 deg off, held at 1.085 and 1.029 x, where the free
-    slides were 11.5 and 10.2 deg off; 2026-11-27, ``benchmarks/results/realistic/state_probe/``).
+    ``LOOSE_FACE_RESIDUAL_RATIO`` of the free slide's residual and the free slide tilts from it by
+    more than the normals' spread: the data then cannot tell the two apart, and the drawer's
+    physics can (measured on realistic renders of a table drawer: faces read 5.0 and 5.8 deg
+    apart, 6.4 and 2.5 deg off, 14.5 and 10.9 deg from free slides 11.5 and 10.2 deg off, held at
+    1.085 and 1.029 x). A free slide within the spread is kept: a clean desk drawer's, 0.8 deg
+    off, 2.7 deg from a face read 7.2 deg apart and 1.9 deg off (2026-11-27,
+    ``benchmarks/results/realistic/state_probe/``).
     The held fit's axis sigma gains the normals' disagreement (half the widest angle between
     them, in quadrature), and ``diagnostics["free_slide"]`` keeps the free fit's axis and tilt.
     ``fit_options``: the keyword arguments of the free fit (colours, config, confidences, frame
@@ -472,10 +475,12 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
     tilt = axis_angle_deg(normal, joint.axis)
     if tilt < FRONT_MIN_TILT_DEG or tilt > (UNSURE_MAX_TILT_DEG if unsure else FRONT_MAX_TILT_DEG):
         return joint
-    # a face read looser than FRONT_STATES_AGREE_DEG is held only where the data cannot tell it
-    # from the free slide (LOOSE_FACE_RESIDUAL_RATIO), except beyond the usual tilt window, which
-    # is open to unsure slides only
+    # a face read looser than FRONT_STATES_AGREE_DEG is held only when the free slide lies outside
+    # the reading's own spread and the data cannot tell the two apart (LOOSE_FACE_RESIDUAL_RATIO),
+    # except beyond the usual tilt window, which is open to unsure slides only
     loose = disagreement > FRONT_STATES_AGREE_DEG and tilt <= FRONT_MAX_TILT_DEG
+    if loose and tilt <= disagreement:
+        return joint
     ratio = LOOSE_FACE_RESIDUAL_RATIO if loose else FRONT_MAX_RESIDUAL_RATIO
     seed_motion = np.eye(4)
     seed_motion[:3, 3] = normal * float(joint.distance) * float(np.cos(np.radians(tilt)))
