@@ -207,7 +207,7 @@ def _place_through_twins(scene: Scene, lifted: LiftedScene, poses: dict[str, lis
     (:func:`~sparseart.align.still.place_through_twins`): pose, pointmap (in its state's frame),
     report entry and warning updated in place."""
     placed = place_through_twins(scene.start, scene.end, lifted.pointmaps["start"], lifted.pointmaps["end"],
-                                 poses["start"], poses["end"], end_to_start)
+                                 poses["start"], poses["end"], end_to_start, zoom=lifted.units != "metres")
     for (state, k), (pose, share) in placed.items():
         poses[state][k] = pose
         to_frame = pose if state == "start" else end_to_start @ pose
