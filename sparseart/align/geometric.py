@@ -166,8 +166,33 @@ def geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap]
     Returns ((4, 4) j -> i, overlap fraction, edge weight in [0, 1)). O(N log N + H W)."""
     if _planar(j, i, clouds, size):
         return None
-    return _checked(register_rigid(clouds[j], clouds[i], *_colours(j, i, frames, pointmaps), seed=seed), j, i,
-                    frames, pointmaps, clouds, size, max_violation)
+    result = _polished(register_rigid(clouds[j], clouds[i], *_colours(j, i, frames, pointmaps), seed=seed),
+                       clouds[j], clouds[i], size)
+    return _checked(result, j, i, frames, pointmaps, clouds, size, max_violation)
+
+
+POLISH_MAX_POINTS = 20000   # the full-resolution polish of a geometric edge reads at most this many points per view
+
+
+def _polished(result, source: np.ndarray, target: np.ndarray, size: float):
+    """``result`` (:class:`~sparseart.geometry.icp.RigidRegistration` of view clouds ``source`` /
+    ``target``, (N, 3) / (M, 3)) with its transform polished by the project's point-to-plane ICP
+    (:func:`~sparseart.geometry.icp.icp_polish` at ``THRESHOLD_FRACTION`` of the scene ``size``, on
+    an even subsample of at most ``POLISH_MAX_POINTS`` points per view), when that raises the
+    overlap; else unchanged.
+
+    Why: register_rigid fits on 2000-point subsamples, so its answer is only as fine as their
+    spacing. On a box whose drawers are open, a slide along the drawers keeps their walls on each
+    other: measured on a clean textureless cabinet's end views (drawer_19179_multi, unposed), the
+    fit was 6.2 % of the scene off along them at overlap 0.692 (true pose 0.697), nothing seen
+    through; the start views placed through those views inherited it, and a drawer's moved points
+    then lay on start points (unmatched). Polished: 0.1 %. O((N + M) log(N + M))."""
+    from dataclasses import replace
+
+    from sparseart.geometry.icp import icp_polish
+
+    polished = icp_polish(source, target, result.transform, THRESHOLD_FRACTION * size, max_points=POLISH_MAX_POINTS)
+    return result if polished is None else replace(result, transform=np.asarray(polished, dtype=np.float64))
 
 
 class GeometricEdges:
@@ -219,8 +244,9 @@ class GeometricEdges:
         clouds = self.clouds
         if _planar(j, i, clouds, size):
             return None
-        result = register_rigid(clouds[j], clouds[i], *_colours(j, i, self.frames, self.pointmaps), seed=self.seed,
-                                hypotheses=upright_starts(clouds[j], clouds[i]), agreement=agreement)
+        result = _polished(register_rigid(clouds[j], clouds[i], *_colours(j, i, self.frames, self.pointmaps),
+                                          seed=self.seed, hypotheses=upright_starts(clouds[j], clouds[i]),
+                                          agreement=agreement), clouds[j], clouds[i], size)
         edge = _checked(result, j, i, self.frames, self.pointmaps, clouds, size, MAX_SEARCH_VIOLATION)
         if edge is None or agreement(edge[0]) < LABEL_AGREEMENT or tilt_deg(edge[0]) > MAX_SEARCH_TILT_DEG:
             return None
