@@ -164,12 +164,11 @@ def test_an_unposed_textureless_desk_without_masks_is_aligned(tmp_path):
     the maskless labeler took the whole desk for moving parts (two drawers unmatched, two fitted as
     turns 85-89 deg off). A whole-scene ICP that moves the states by more than
     STATE_POLISH_MIN_DEG says the features were off; its correction is taken before labelling.
-    The states are then aligned to < 0.1 deg and 0.3 % of the object, and at least three of the
-    four drawers slide within 5 deg, none fitted wrong. (The fourth: the two lower drawers slid
-    0.245 and 0.218 object units, close enough for the maskless motion split to take them for one
-    part on some machines -- same code and versions, an AMD EPYC here, whose raycast and BLAS round
-    differently -- and the other drawer is then reported unmatched, not fitted wrong.) (The still
-    camera keeps its test: the cabinet below.)"""
+    The states are then aligned to < 0.1 deg and 0.3 % of the object, and all four drawers slide
+    within 5 deg. (On one machine the two lower drawers, slid 0.245 and 0.218 object units, came
+    out as one part until the geometric view edges were polished at full resolution: the views
+    registered by geometry alone lay a few per cent of the scene apart, enough to blur the two
+    drawers' motions into one.) (The still camera keeps its test: the cabinet below.)"""
     import sparseart
     from sparseart.bench.evaluate import evaluate
     from sparseart.datasets.partnet import render_partnet_scene
@@ -183,9 +182,7 @@ def test_an_unposed_textureless_desk_without_masks_is_aligned(tmp_path):
     assert degrees < 0.1 and shift < 0.003, (degrees, shift)
     rows = evaluate(result, load_scene(scene_dir), gt)
     assert len(rows) == 4
-    fitted = [row for row in rows if not row["unmatched"]]
-    assert len(fitted) >= 3, rows
-    for row in fitted:
+    for row in rows:
         assert row["type_correct"] and row["axis_deg"] < 5.0, row
 
 

@@ -155,19 +155,21 @@ def _free_space_violation(points: np.ndarray, frame: Frame, pointmap: Pointmap, 
 
 
 def geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray],
-                  size: float, seed: int,
-                  max_violation: float = MAX_FREE_SPACE_VIOLATION) -> tuple[np.ndarray, float, float] | None:
+                  size: float, seed: int, max_violation: float = MAX_FREE_SPACE_VIOLATION,
+                  polish: bool = True) -> tuple[np.ndarray, float, float] | None:
     """Geometric fallback view j -> view i for metric clouds in their camera frames
     (:func:`sparseart.geometry.icp.register_rigid`: PCA/FPFH hypotheses + coloured ICP).
 
     None for planar clouds (they slide), small overlap, or when either view sees through the other
     one's surfaces more than ``max_violation`` (free-space check, which rejects the turned-around
-    fits of symmetric objects; ``NOISY_MAX_FREE_SPACE_VIOLATION`` for noisy depth).
+    fits of symmetric objects; ``NOISY_MAX_FREE_SPACE_VIOLATION`` for noisy depth). ``polish``:
+    polish the fit at full resolution (:func:`_polished`; clean depth only, as the graph's own polish).
     Returns ((4, 4) j -> i, overlap fraction, edge weight in [0, 1)). O(N log N + H W)."""
     if _planar(j, i, clouds, size):
         return None
-    result = _polished(register_rigid(clouds[j], clouds[i], *_colours(j, i, frames, pointmaps), seed=seed),
-                       clouds[j], clouds[i], size)
+    result = register_rigid(clouds[j], clouds[i], *_colours(j, i, frames, pointmaps), seed=seed)
+    if polish:
+        result = _polished(result, clouds[j], clouds[i], size)
     return _checked(result, j, i, frames, pointmaps, clouds, size, max_violation)
 
 
@@ -186,7 +188,10 @@ def _polished(result, source: np.ndarray, target: np.ndarray, size: float):
     other: measured on a clean textureless cabinet's end views (drawer_19179_multi, unposed), the
     fit was 6.2 % of the scene off along them at overlap 0.692 (true pose 0.697), nothing seen
     through; the start views placed through those views inherited it, and a drawer's moved points
-    then lay on start points (unmatched). Polished: 0.1 %. O((N + M) log(N + M))."""
+    then lay on start points (unmatched). Polished: 0.1 %. Clean depth only: on the realistic
+    renders (noisy, warped depth) it moved 12 of 84 joints both ways (one success lost, the
+    slowest scene's registration 8 -> 19 s), as the graph's polish once did
+    (``graph.POLISH_MAX_ROUGHNESS``). O((N + M) log(N + M))."""
     from dataclasses import replace
 
     from sparseart.geometry.icp import icp_polish
@@ -205,19 +210,21 @@ class GeometricEdges:
     coarse ICPs on <= 2000 points. ``notes[j, i]`` says which of the two a searched edge is.
 
     ids: per view, the mask id of each cloud point (:func:`view_mask_ids`) or None; max_violation:
-    the plain fits' free-space allowance (:func:`geometry_edge`)."""
+    the plain fits' free-space allowance, polish: whether fits are polished (:func:`geometry_edge`)."""
 
     def __init__(self, frames: list[Frame], pointmaps: list[Pointmap], clouds: list[np.ndarray], seed: int,
-                 ids: list[np.ndarray | None], max_violation: float = MAX_FREE_SPACE_VIOLATION) -> None:
+                 ids: list[np.ndarray | None], max_violation: float = MAX_FREE_SPACE_VIOLATION,
+                 polish: bool = True) -> None:
         self.frames, self.pointmaps, self.clouds, self.seed, self.ids = frames, pointmaps, clouds, seed, ids
-        self.max_violation = max_violation
+        self.max_violation, self.polish = max_violation, polish
         self._plain: dict[tuple[int, int], tuple] = {}
         self._searched: dict[tuple[int, int], tuple | None] = {}
         self.notes: dict[tuple[int, int], str] = {}     # (j, i) -> how a searched edge came about
 
     def _plain_and_ids(self, j: int, i: int, size: float) -> tuple:
         if (j, i) not in self._plain:
-            edge = geometry_edge(j, i, self.frames, self.pointmaps, self.clouds, size, self.seed, self.max_violation)
+            edge = geometry_edge(j, i, self.frames, self.pointmaps, self.clouds, size, self.seed, self.max_violation,
+                                 self.polish)
             agreement = None
             if self.ids[j] is not None and self.ids[i] is not None:
                 agreement = id_agreement(self.clouds[j], self.ids[j], self.clouds[i], self.ids[i], size, self.seed)
@@ -244,9 +251,10 @@ class GeometricEdges:
         clouds = self.clouds
         if _planar(j, i, clouds, size):
             return None
-        result = _polished(register_rigid(clouds[j], clouds[i], *_colours(j, i, self.frames, self.pointmaps),
-                                          seed=self.seed, hypotheses=upright_starts(clouds[j], clouds[i]),
-                                          agreement=agreement), clouds[j], clouds[i], size)
+        result = register_rigid(clouds[j], clouds[i], *_colours(j, i, self.frames, self.pointmaps), seed=self.seed,
+                                hypotheses=upright_starts(clouds[j], clouds[i]), agreement=agreement)
+        if self.polish:
+            result = _polished(result, clouds[j], clouds[i], size)
         edge = _checked(result, j, i, self.frames, self.pointmaps, clouds, size, MAX_SEARCH_VIOLATION)
         if edge is None or agreement(edge[0]) < LABEL_AGREEMENT or tilt_deg(edge[0]) > MAX_SEARCH_TILT_DEG:
             return None

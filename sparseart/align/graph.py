@@ -848,11 +848,12 @@ def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed
     after round (a view placed by geometry can reach the views tried before it); the mask ids'
     search (:class:`~sparseart.align.geometric.GeometricEdges`) only when no plain fit places any
     view, and then plain fits again from what it placed. ``noisy`` (depth rougher than
-    ``POLISH_MAX_ROUGHNESS``): plain fits may see through ``NOISY_MAX_FREE_SPACE_VIOLATION``."""
+    ``POLISH_MAX_ROUGHNESS``): plain fits may see through ``NOISY_MAX_FREE_SPACE_VIOLATION`` and
+    are not polished at full resolution."""
     if len(registered) == len(frames):
         return
     edges = GeometricEdges(frames, maps, clouds, seed, [view_mask_ids(f, m) for f, m in zip(frames, maps)],
-                           NOISY_MAX_FREE_SPACE_VIOLATION if noisy else MAX_FREE_SPACE_VIOLATION)
+                           NOISY_MAX_FREE_SPACE_VIOLATION if noisy else MAX_FREE_SPACE_VIOLATION, polish=not noisy)
     # the size of each state's own views (the other state's moved part would change it)
     sizes = {}
     for is_start in (True, False):
