@@ -18,6 +18,7 @@ name parts across images (a per-image segmenter's 1..k) never agree, so nothing 
 """
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import lru_cache
 
 import numpy as np
@@ -26,7 +27,7 @@ from scipy.spatial.transform import Rotation
 
 from sparseart.align.features import PLANAR_FRACTION, THRESHOLD_FRACTION
 from sparseart.geometry.clouds import spread
-from sparseart.geometry.icp import register_rigid
+from sparseart.geometry.icp import RigidRegistration, icp_polish, register_rigid
 from sparseart.geometry.transforms import apply_transform, make_transform
 from sparseart.types import Frame, Pointmap
 
@@ -176,7 +177,7 @@ def geometry_edge(j: int, i: int, frames: list[Frame], pointmaps: list[Pointmap]
 POLISH_MAX_POINTS = 6000   # the full-resolution polish of a geometric edge reads at most this many points per view
 
 
-def _polished(result, source: np.ndarray, target: np.ndarray, size: float):
+def _polished(result: RigidRegistration, source: np.ndarray, target: np.ndarray, size: float) -> RigidRegistration:
     """``result`` (:class:`~sparseart.geometry.icp.RigidRegistration` of view clouds ``source`` /
     ``target``, (N, 3) / (M, 3)) with its transform polished by the project's point-to-plane ICP
     (:func:`~sparseart.geometry.icp.icp_polish` at ``THRESHOLD_FRACTION`` of the scene ``size``, on
@@ -190,14 +191,10 @@ def _polished(result, source: np.ndarray, target: np.ndarray, size: float):
     through; the start views placed through those views inherited it, and a drawer's moved points
     then lay on start points (unmatched). Polished: 0.1 %. At most 6000 points per view: at
     20 000 the clean unposed cabinet and fridge scenes took 13.5-14.0 s instead of 9.8-10.5 s, at
-    6000 10.1 and 9.8 s with the same joints (every candidate edge is polished). Clean depth only: on the realistic
-    renders (noisy, warped depth) it moved 12 of 84 joints both ways (one success lost, the
-    slowest scene's registration 8 -> 19 s), as the graph's polish once did
+    6000 10.1 and 9.8 s with the same joints (every candidate edge is polished). Clean depth
+    only: on the realistic renders (noisy, warped depth) it moved 12 of 84 joints both ways (one
+    success lost, the slowest scene's registration 8 -> 19 s), as the graph's polish once did
     (``graph.POLISH_MAX_ROUGHNESS``). O((N + M) log(N + M))."""
-    from dataclasses import replace
-
-    from sparseart.geometry.icp import icp_polish
-
     polished = icp_polish(source, target, result.transform, THRESHOLD_FRACTION * size, max_points=POLISH_MAX_POINTS)
     return result if polished is None else replace(result, transform=np.asarray(polished, dtype=np.float64))
 

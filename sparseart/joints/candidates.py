@@ -281,7 +281,8 @@ FRONT_MAX_TILT_DEG = 30.0       # a free slide farther from the face normal than
                                 # (or along an oblique face: a toaster lever's, 35-37 deg, clean renders)
 # A free slide whose own stated axis sigma exceeds MAX_AXIS_SIGMA_DEG (a rival slide fits as well)
 # does not fix its direction: its face normal is then taken up to this tilt, beyond
-# FRONT_MAX_TILT_DEG with the faces read within this looser agreement (within it: the usual one).
+# FRONT_MAX_TILT_DEG with the faces read within this looser agreement (within FRONT_MAX_TILT_DEG a
+# face read this loosely is held under LOOSE_FACE_RESIDUAL_RATIO, for any slide).
 UNSURE_MAX_TILT_DEG = 60.0
 UNSURE_STATES_AGREE_DEG = 10.0
 # Within the usual tilt window a face whose normals were read FRONT_STATES_AGREE_DEG to
