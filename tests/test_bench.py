@@ -222,3 +222,17 @@ def test_a_cached_render_of_another_renderer_version_is_rendered_again(tmp_path)
     stamp_path.write_text(json.dumps(stamp))
     _, old = render_cached(PARTNET_DIR / "laptop_rotate_10211", scene_dir, setting)
     assert old > 0 and json.loads(stamp_path.read_text())["renderer"] == RENDERER_VERSION
+
+
+def test_seconds_are_read_over_every_seed_s_scene():
+    """--seeds renders one scene per seed under one setting name: the median seconds are read over
+    all of them (the joints of one scene count once), not over the last seed's scene per object."""
+    from sparseart.bench.grid import _stage_stats
+
+    def row(seed: int, seconds: float) -> dict:
+        return {"object": "box", "setting": "realistic", "method": "sparseart", "config": {"seed": seed},
+                "pipeline_seconds": seconds, "stage_seconds": {"fit": seconds / 2}}
+
+    rows = [row(0, 1.0), row(0, 1.0), row(1, 3.0), row(2, 8.0)]
+    stats = _stage_stats(rows)
+    assert stats["seconds_median"] == 3.0 and stats["fit_seconds_median"] == 1.5

@@ -189,8 +189,9 @@ def run_grid(objects: list[Path], out_dir: Path, settings: list[BenchSetting], p
 
 
 def _stage_stats(rows: list[dict[str, Any]]) -> dict[str, float]:
-    """Median seconds per stage and in total over the distinct scenes of ``rows``."""
-    scenes = {(r["object"], r["setting"], r["method"]): r for r in rows}.values()
+    """Median seconds per stage and in total over the distinct scenes of ``rows`` (one per object,
+    setting, method and seed: every seed renders its own scene)."""
+    scenes = {(r["object"], r["setting"], r["method"], r.get("config", {}).get("seed")): r for r in rows}.values()
     out = {"seconds_median": statistics.median(r["pipeline_seconds"] for r in scenes),
            "seconds_mean": statistics.fmean(r["pipeline_seconds"] for r in scenes)}
     for stage in STAGES:
