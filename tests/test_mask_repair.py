@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sparseart.labelers.mask_repair import repair_merged_masks
+from sparseart.labelers.mask_repair import repair_merged_masks, split_mask_ids
 from sparseart.types import LabelledCloud
 
 
@@ -66,3 +66,23 @@ def test_frayed_borders_and_two_views_are_left_alone_and_the_repair_is_unit_free
     assert len(notes) == 1 and np.mean(repaired.mask_ids()[repaired.frame_index == 2] == truth) > 0.97
     # ids that name nothing across images (a per-image segmenter): no repair
     assert repair_merged_masks(merged, frozenset(), np.random.default_rng(0)) == (merged, [])
+
+
+def test_a_split_id_is_told_from_an_id_that_swallowed_another_part():
+    rng = np.random.default_rng(3)
+    points, truth = _plates(rng)
+    # frame 1 cuts a strip off the arm under a new id 3, seen in that image only
+    split = np.where((truth == 2) & (points[:, 1] > 0.2), 3, truth)
+    cloud = _state([truth, split, truth, truth], points)
+    repaired, _ = repair_merged_masks(cloud, frozenset({1, 2, 3}), np.random.default_rng(0))
+    assert split_mask_ids(cloud, repaired) == frozenset({3})
+    # a small part's id (2, a narrow strip) swallows the base in frame 2: most of its points there
+    # are handed over, but every image uses the id, so it keeps naming its part
+    small = np.where(points[:, 0] > 0.4, 2, 1)
+    swallowed = np.full_like(small, 2)
+    cloud = _state([small, small, swallowed, small], points)
+    repaired, notes = repair_merged_masks(cloud, frozenset({1, 2}), np.random.default_rng(0))
+    assert notes and np.count_nonzero(repaired.mask_ids() != cloud.mask_ids()) > 0.5 * np.count_nonzero(
+        cloud.mask_ids() == 2)
+    assert split_mask_ids(cloud, repaired) == frozenset()
+    assert split_mask_ids(cloud, cloud) == frozenset()   # nothing handed over, nothing split

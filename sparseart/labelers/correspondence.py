@@ -544,7 +544,8 @@ def _ids_keep_their_place(cloud: LabelledCloud, ids: set[int]) -> bool:
 
 
 def mask_agreement(start: LabelledCloud, end: LabelledCloud, start_groups: list[Group],
-                   end_groups: list[Group], named: frozenset[int] = frozenset()) -> np.ndarray | None:
+                   end_groups: list[Group], named: frozenset[int] = frozenset(),
+                   split: frozenset[int] = frozenset()) -> np.ndarray | None:
     """(G_s, G_e) +1 / -1 for equal / different mask ids, 0 where a group carries several ids (a
     mask merge), or None when the ids do not agree across images: at least two ids, half of each
     state's single ids, and the ids of half of each state's groups must occur in both states.
@@ -554,12 +555,13 @@ def mask_agreement(start: LabelledCloud, end: LabelledCloud, start_groups: list[
     every group its id when both states carry it, in a group or among the points (``named``, from
     :func:`named_mask_ids`: a part too small to form a group in one state still owns its id)
     (``Group.mask_ids``; empty otherwise): such ids name distinct parts (:func:`distinct_by_masks`).
-    O(G_s G_e)."""
+    ``split``: ids found to be split pieces of other parts (:func:`~.mask_repair.split_mask_ids`):
+    a group carrying one counts as carrying no single id. O(G_s G_e)."""
     def ids(cloud: LabelledCloud, groups: list[Group]) -> list[int | None]:
         result = []
         for group in groups:
             found = {cloud.segment_source[s][1] for s in group.segments if s in cloud.segment_source}
-            result.append(next(iter(found)) if len(found) == 1 else None)
+            result.append(next(iter(found)) if len(found) == 1 and not found & split else None)
         return result
 
     start_ids, end_ids = ids(start, start_groups), ids(end, end_groups)

@@ -76,6 +76,29 @@ def repair_merged_masks(cloud: LabelledCloud, named_ids: frozenset[int],
     return replace(cloud, segment=segment, segment_source=source), notes
 
 
+SPLIT_ID_SHARE = 0.5         # an id that lost more than this share of its points in a state to other ids is a split
+
+
+def split_mask_ids(before: LabelledCloud, after: LabelledCloud) -> frozenset[int]:
+    """The mask ids that :func:`repair_merged_masks` found to be split pieces of other parts: ids
+    that occur in one image of this state only and more than ``SPLIT_ID_SHARE`` of whose points
+    (``before``, same point order as ``after``) the repair handed over to other ids. Such an id
+    names no part of its own, even when a split in the other state happens to reuse it (a
+    segmenter numbering a new piece max id + 1): it must not keep its piece apart from the part it
+    was cut from (:func:`~.correspondence.distinct_by_masks`). A merge hands over the swallowed
+    part's points under an id the other images use too (measured on a realistic oven: a rack's id
+    swallowed a door in one image, 1279 of its 1500 points there; the rack keeps its id), so it
+    keeps its name. O(N)."""
+    old, new = before.mask_ids(), after.mask_ids()
+    found = []
+    for mask_id in np.unique(old[old > 0]).tolist():
+        members = old == mask_id
+        if (len(np.unique(before.frame_index[members])) == 1
+                and np.count_nonzero(new[members] != mask_id) > SPLIT_ID_SHARE * np.count_nonzero(members)):
+            found.append(int(mask_id))
+    return frozenset(found)
+
+
 def _claims(cloud: LabelledCloud, mask_id: np.ndarray, named: np.ndarray, frames: np.ndarray,
             radius: float) -> np.ndarray:
     """(N,) int64: for each named point, the id that most of the other frames covering it give it,

@@ -46,7 +46,7 @@ from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 from .consistency import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
 from .correspondence import (AMBIGUITY_MARGIN, Group, PairContext, apply, assign, distinct_by_masks,
                              mask_agreement, motion_size, named_mask_ids, pair_score, prefer_small_turns, score_pairs)
-from .mask_repair import repair_merged_masks
+from .mask_repair import repair_merged_masks, split_mask_ids
 
 STATIC_ANGLE_DEG = 1.0          # a matched pair moving less than this and ...
 STATIC_SHIFT_RADII = 1.5        # ... less than this many inlier radii is static
@@ -155,10 +155,12 @@ class RuleBasedLabeler:
         rng = np.random.default_rng(config.seed)
         warnings: list[str] = []
         has_masks = bool(np.any(start.segment >= 0) and np.any(end.segment >= 0))
+        original_start, original_end, split_ids = start, end, frozenset()
         if has_masks:   # merged / split masks put right by the state's other views (module doc, step 1)
             ids, repair_rng = named_mask_ids(start, end), np.random.default_rng(config.seed + 7)
-            start, start_notes = repair_merged_masks(start, ids, repair_rng)
-            end, end_notes = repair_merged_masks(end, ids, repair_rng)
+            (start, start_notes), (end, end_notes) = (repair_merged_masks(cloud, ids, repair_rng)
+                                                      for cloud in (start, end))
+            split_ids = split_mask_ids(original_start, start) | split_mask_ids(original_end, end)
             warnings.extend(start_notes + end_notes)
         voxel = _voxel_size(start, end, config, rng)
         work_start, start_map = _downsample(start, voxel)
@@ -174,7 +176,7 @@ class RuleBasedLabeler:
             warnings.append("no masks: parts come from a motion-based split (points that moved)")
             config = replace(config, min_segment_share=max(config.min_segment_share,
                                                            config.motion_piece_min_share))
-        named = named_mask_ids(work_start, work_end) if has_masks else frozenset()
+        named = named_mask_ids(work_start, work_end) - split_ids if has_masks else frozenset()
         start_groups = _merge_across_frames(work_start, start_segments, radius, config, rng, named)
         end_groups = _merge_across_frames(work_end, end_segments, radius, config, rng, named)
         if not start_groups or not end_groups:
@@ -185,7 +187,7 @@ class RuleBasedLabeler:
         context = PairContext(work_start, work_end, start_groups, end_groups, radius, diameter, views[0], views[1],
                               config.max_points_per_segment, config.pair_registration_points, config.seed)
         context.prepare()
-        mask_ids = mask_agreement(work_start, work_end, start_groups, end_groups, named) if has_masks else None
+        mask_ids = mask_agreement(work_start, work_end, start_groups, end_groups, named, split_ids) if has_masks else None
         candidates = score_pairs(context, config.match_min_score, list(motion_hints or []), mask_ids)
         moving = {key for key, c in candidates.items() if not _is_static(c.transform, c.i, work_start, start_groups, radius)}
         assignment = assign(candidates, len(start_groups), len(end_groups), diameter, config.match_min_score, moving)
