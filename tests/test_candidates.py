@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sparseart.joints.candidates import detached_slide_seeds, mirror_seed, plausible_fits, without_half_turns
+from sparseart.joints.candidates import (body_axis_fits, detached_slide_seeds, mirror_seed, plausible_fits,
+                                        static_body_axes, without_half_turns)
 from sparseart.joints.config import FitConfig
 from sparseart.types import JointEstimate
 
@@ -422,3 +423,60 @@ def test_a_face_read_loosely_is_held_only_where_the_data_cannot_tell_it_from_the
     within = _slide(Rotation.from_rotvec(np.radians(4.0) * np.array([0.0, 1.0, 0.0])).apply(mean_normal), 0.2)
     within.residual = held_residual / 1.05
     assert along_front_normal(within, start, end, {}) is within
+
+
+def _slide(axis, residual: float, distance: float = 0.2) -> JointEstimate:
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    return JointEstimate(type="prismatic", axis=axis, origin=np.zeros(3), angle=None, distance=distance,
+                         transform=np.eye(4), uncertainty={}, residual=residual, confidence=1.0)
+
+
+def test_a_slide_off_every_body_axis_is_refitted_from_them_and_kept_only_in_their_basin():
+    """Body-axis re-fits: only for a slide > 10 deg off every axis of the body's frame; a re-fit
+    is kept when it fits at least as well and ends nearer its axis than the first fit."""
+    axes = np.eye(3)
+    first = _slide([np.cos(0.6), np.sin(0.6), 0.0], residual=0.05)        # 34 deg off x, 56 off y
+    tried = []
+
+    def attempt(seed: np.ndarray) -> JointEstimate:
+        direction = seed[:3, 3] / np.linalg.norm(seed[:3, 3])
+        tried.append(direction)
+        assert abs(np.linalg.norm(seed[:3, 3]) - 0.2) < 1e-12 and direction @ first.axis >= 0
+        if abs(direction[0]) > 0.9:   # from x: settles 8 deg off x, better
+            return _slide([np.cos(0.14), np.sin(0.14), 0.0], residual=0.045)
+        if abs(direction[1]) > 0.9:   # from y: runs back to the first fit's valley
+            return _slide([np.cos(0.55), np.sin(0.55), 0.0], residual=0.049)
+        return _slide(direction, residual=0.08)                           # from z: worse
+    kept = body_axis_fits(first, axes, attempt)
+    assert len(tried) == 3
+    assert len(kept) == 1 and np.degrees(np.arccos(kept[0].axis[0])) < 9.0
+    assert "static body's axis" in kept[0].warnings[0]
+    tried.clear()
+    assert body_axis_fits(_slide([np.cos(0.1), np.sin(0.1), 0.0], 0.05), axes, attempt) == []   # 6 deg off x
+    assert body_axis_fits(first, None, attempt) == [] and not tried
+    turn = _slide([0.0, 0.0, 1.0], 0.05)
+    turn.type = "revolute"
+    assert body_axis_fits(turn, axes, attempt) == [] and not tried
+
+
+def test_the_body_axes_follow_the_faces_not_what_else_the_static_part_holds():
+    """The static body's frame comes from its faces: a cabinet with a ramp beside it (which tilts
+    the principal axes) still gives the cabinet's axes."""
+    rng = np.random.default_rng(4)
+    faces = []
+    size = np.array([1.0, 0.6, 0.8])
+    for axis in range(3):
+        for side in (-0.5, 0.5):
+            face = rng.uniform(-0.5, 0.5, size=(1500, 3)) * size
+            face[:, axis] = side * size[axis]
+            faces.append(face)
+    clutter = np.column_stack([rng.uniform(0.5, 2.0, 1500), np.zeros(1500), rng.uniform(-0.4, 0.4, 1500)])
+    clutter[:, 1] = 0.6 * (clutter[:, 0] - 0.5) + 0.3          # a ramp beside it, along none of its axes
+    rotation = Rotation.from_rotvec([0.2, -0.4, 0.3]).as_matrix()
+    body = np.concatenate(faces + [clutter]) @ rotation.T
+    axes = static_body_axes(body)
+    np.testing.assert_allclose(np.abs(axes.T @ rotation).max(axis=1), 1.0, atol=0.01)
+    centred = body - body.mean(axis=0)
+    principal = np.linalg.eigh(centred.T @ centred)[1]
+    assert np.abs(principal.T @ rotation).max(axis=1).min() < 0.99     # the principal axes are tilted
+    assert static_body_axes(body[:40]) is None and static_body_axes(None) is None

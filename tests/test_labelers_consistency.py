@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from sparseart.labelers.consistency import CONSISTENT, HIDDEN, VIOLATION, state_views, visible_fraction
-from sparseart.labelers.correspondence import (Assignment, Group, PairCandidate, _Screw, assign, manhattan_frame,
+from sparseart.labelers.correspondence import (Assignment, Group, PairCandidate, _Screw, assign,
                                                distinct_by_masks, mask_agreement, prefer_small_turns)
 from sparseart.labelers.rules import _downsample
+from sparseart.geometry.planes import manhattan_frame
 from sparseart.types import Camera, Frame, LabelledCloud, Scene
 
 K = np.array([[100.0, 0.0, 39.5], [0.0, 100.0, 29.5], [0.0, 0.0, 1.0]])
@@ -148,7 +149,7 @@ def test_manhattan_frame_finds_a_turned_box():
             faces.append(face)
     rotation = Rotation.from_rotvec([0.3, 0.5, -0.2]).as_matrix()
     box = np.concatenate(faces) @ rotation.T
-    frame = manhattan_frame(box, radius=0.03)
+    frame = manhattan_frame(box)
     np.testing.assert_allclose(np.abs(frame.T @ rotation).max(axis=1), 1.0, atol=0.02)
 
 

@@ -119,6 +119,8 @@ def align_scene(scene: Scene, lifted: LiftedScene, *, seed: int = 0, matcher=Non
         scene, lifted, corrected = _match_still_end_depth(scene, lifted, warnings)
         registration = register_scene({s: scene.frames(s) for s in STATES}, lifted.pointmaps,
                                       relative=lifted.units != "metres", seed=seed, matcher=matcher)
+        frame = ("camera", "OpenCV frame of start/rgb/" + scene.start[registration.reference].rgb_path.name,
+                 lifted.units)
         total = time.perf_counter() - began
         checks = registration.seconds.get("check", 0.0)
         seconds = {"register_views": total - checks, "align_states": checks}

@@ -57,20 +57,24 @@ def true_groups(cloud: LabelledCloud, scene: Scene, gt: dict[str, Any]) -> np.nd
     return groups
 
 
-def _result_to_gt_frame(result: Articulation, gt: dict[str, Any]) -> np.ndarray:
+def _result_to_gt_frame(result: Articulation, gt: dict[str, Any], scene: Scene | None = None) -> np.ndarray:
     """(4, 4) rigid map from the result's frame to gt.json's world frame.
 
     Posed results are already in the world frame (identity). Unposed results are in the OpenCV
-    frame of the first start camera (design section 2): its true cam_to_world from gt.json maps
-    them to the world. Relative-scale results are not rescaled here; their prismatic distances
-    and positions are only comparable after a scale is known.
+    frame of a start camera (design section 2): the first, or the start image the result's frame
+    reference names when that one could not be registered (``scene`` gives the images' order);
+    its true cam_to_world from gt.json maps them to the world. Relative-scale results are not
+    rescaled here; their prismatic distances and positions are only comparable after a scale is
+    known.
     """
     if result.frame_kind != "camera":
         return np.eye(4)
     cameras = gt.get("cameras", {}).get("start")
     if not cameras:
         raise ValueError("gt.json has no true start cameras to bring a camera-frame result into the world frame")
-    return np.asarray(cameras[0], dtype=np.float64)
+    names = [frame.rgb_path.name for frame in scene.start] if scene is not None else []
+    index = next((k for k, name in enumerate(names) if result.frame_reference.endswith("start/rgb/" + name)), 0)
+    return np.asarray(cameras[index], dtype=np.float64)
 
 
 def _subsample(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
@@ -97,7 +101,7 @@ def evaluate(result: Articulation, scene: Scene, gt: dict[str, Any]) -> list[dic
                 cost[i, k] = metrics.chamfer_distance(part_points, points)
     matches, unmatched = metrics.match_parts(cost) if len(predicted) else ([], list(range(len(gt_joints))))
     scale = float(gt.get("scale", 1.0))
-    to_world = _result_to_gt_frame(result, gt)
+    to_world = _result_to_gt_frame(result, gt, scene)
     rows: list[dict[str, Any]] = [{} for _ in gt_joints]
     for i, k in matches:
         part, joint = predicted[i]

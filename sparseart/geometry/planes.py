@@ -1,8 +1,10 @@
 """Planes and the hinge two planes imply: a RANSAC plane fit, the four turns about the line where a
-part's start and end planes meet, and the truncated Chamfer loss that picks among them.
+part's start and end planes meet, the truncated Chamfer loss that picks among them, and the
+dominant plane normals of a boxy body (its Manhattan frame).
 
-Used by the joint fitter (a closed-form revolute seed for a slab) and by the maskless labeler
-(candidate motions for doors and lids that registration from identity cannot reach). All points
+Used by the joint fitter (a closed-form revolute seed for a slab; slides along the static body's
+axes) and by the maskless labeler (candidate motions for doors and lids that registration from
+identity cannot reach; the static body's frame). All points
 are (N, 3) float64 in one frame; lengths are in the caller's unit.
 """
 from __future__ import annotations
@@ -11,6 +13,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from sparseart.geometry.clouds import pca_normals
 from sparseart.geometry.transforms import apply_transform, make_transform
 
 RANSAC_ITERATIONS = 300
@@ -78,3 +81,45 @@ def best_by_truncated_chamfer(transforms: list[np.ndarray], start_sample: np.nda
         return float(forward.mean() + backward.mean())
 
     return min(transforms, key=loss)
+
+
+def manhattan_frame(points: np.ndarray, sample: int = 3000, candidates: int = 300) -> np.ndarray:
+    """(3, 3) orthonormal axes (columns) along the dominant surface normals of a (boxy) body.
+
+    Normals from local PCA (12 neighbours) of up to ``sample`` points; the first axis is the
+    normal shared (within 10 deg) by most others, the second the same among the normals
+    perpendicular to it, the third their cross product. Falls back to the principal axes of the
+    points for tiny or featureless clouds. Deterministic (strided picks). O(S log N + C S).
+    """
+    points = np.asarray(points, dtype=np.float64)
+    fallback = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)[2].T if len(points) >= 3 else np.eye(3)
+    if len(points) < 50:
+        return fallback
+    pick = points[np.linspace(0, len(points) - 1, min(sample, len(points))).astype(np.int64)]
+    normals = pca_normals(points, pick, 12)
+    cos10, sin10 = np.cos(np.radians(10.0)), np.sin(np.radians(10.0))
+
+    def dominant(pool: np.ndarray) -> np.ndarray | None:
+        if len(pool) < 10:
+            return None
+        tries = pool[np.linspace(0, len(pool) - 1, min(candidates, len(pool))).astype(np.int64)]
+        support = (np.abs(tries @ pool.T) > cos10).sum(axis=1)
+        best = tries[int(np.argmax(support))]
+        members = pool[np.abs(pool @ best) > cos10]
+        members = members * np.sign(members @ best)[:, None]
+        mean = members.mean(axis=0)
+        return mean / np.linalg.norm(mean)
+
+    first = dominant(normals)
+    if first is None:
+        return fallback
+    rest = normals[np.abs(normals @ first) < sin10]
+    rest = rest - (rest @ first)[:, None] * first
+    lengths = np.linalg.norm(rest, axis=1)
+    rest = rest[lengths > 1e-9] / lengths[lengths > 1e-9, None]
+    second = dominant(rest)
+    if second is None:
+        return fallback
+    second = second - (second @ first) * first
+    second /= np.linalg.norm(second)
+    return np.stack([first, second, np.cross(first, second)], axis=1)

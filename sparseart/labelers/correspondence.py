@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ..geometry.clouds import pca_normals
+from ..geometry.planes import manhattan_frame
 from ..joints.config import FitConfig
 from ..joints.select import FAR_PIVOT_MAX_TURN_DEG
 from ..parallel import in_parallel
@@ -145,7 +146,7 @@ class PairContext:
         points = self.start.points[indices]
         if len(points) < 3:
             return
-        self.frame = manhattan_frame(points, self.radius)
+        self.frame = manhattan_frame(points)
         local = points @ self.frame
         self.box = (np.percentile(local, 1, axis=0), np.percentile(local, 99, axis=0))
 
@@ -199,48 +200,6 @@ class PairContext:
             self._state_trees[state] = cKDTree((self.start if state == "start" else self.end).points)
         cloud = (self.start if state == "start" else self.end).points
         return pca_normals(cloud, points, 10, tree=self._state_trees[state])
-
-
-def manhattan_frame(points: np.ndarray, radius: float, sample: int = 3000, candidates: int = 300) -> np.ndarray:
-    """(3, 3) orthonormal axes (columns) along the dominant surface normals of a (boxy) body.
-
-    Normals from local PCA (12 neighbours) of up to ``sample`` points; the first axis is the
-    normal shared (within 10 deg) by most others, the second the same among the normals
-    perpendicular to it, the third their cross product. Falls back to the principal axes of the
-    points for tiny or featureless clouds. Deterministic (strided picks). O(S log N + C S).
-    """
-    points = np.asarray(points, dtype=np.float64)
-    fallback = np.linalg.svd(points - points.mean(axis=0), full_matrices=False)[2].T if len(points) >= 3 else np.eye(3)
-    if len(points) < 50:
-        return fallback
-    pick = points[np.linspace(0, len(points) - 1, min(sample, len(points))).astype(np.int64)]
-    normals = pca_normals(points, pick, 12)
-    cos10, sin10 = np.cos(np.radians(10.0)), np.sin(np.radians(10.0))
-
-    def dominant(pool: np.ndarray) -> np.ndarray | None:
-        if len(pool) < 10:
-            return None
-        tries = pool[np.linspace(0, len(pool) - 1, min(candidates, len(pool))).astype(np.int64)]
-        support = (np.abs(tries @ pool.T) > cos10).sum(axis=1)
-        best = tries[int(np.argmax(support))]
-        members = pool[np.abs(pool @ best) > cos10]
-        members = members * np.sign(members @ best)[:, None]
-        mean = members.mean(axis=0)
-        return mean / np.linalg.norm(mean)
-
-    first = dominant(normals)
-    if first is None:
-        return fallback
-    rest = normals[np.abs(normals @ first) < sin10]
-    rest = rest - (rest @ first)[:, None] * first
-    lengths = np.linalg.norm(rest, axis=1)
-    rest = rest[lengths > 1e-9] / lengths[lengths > 1e-9, None]
-    second = dominant(rest)
-    if second is None:
-        return fallback
-    second = second - (second @ first) * first
-    second /= np.linalg.norm(second)
-    return np.stack([first, second, np.cross(first, second)], axis=1)
 
 
 def _sample(indices: np.ndarray, limit: int, rng: np.random.Generator) -> np.ndarray:
