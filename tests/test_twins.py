@@ -332,9 +332,11 @@ def test_drawer_slides_along_the_body_axis_without_masks(tmp_path):
 @pytest.mark.skipif(not (PARTNET_DIR / "drawer_31249").is_dir(), reason=f"drawer_31249 not found in {PARTNET_DIR}")
 def test_a_drawer_front_read_loosely_holds_the_slide_where_the_data_cannot_tell(tmp_path):
     """The table's drawer on the realistic bench render (seed 3: warped, noisy depth, ragged masks,
-    an arm on it): the free slide comes out 10.2 deg off, its front's normals read 5.8 deg apart
-    (beyond the 5 deg of a firm reading) and 2.5 deg off; the slide along them fits at 1.03 x the
-    free residual, so the data cannot tell them apart and the front is held."""
+    an arm on it): the free slide tilts within the front (15 deg off; 5.5 from the static body's
+    axis); the slide along the front's normal fits about as well and is held (2.0 deg). Its front's normals read 3.9 deg apart
+    since a split piece of its mask rejoins it (mask_repair.split_mask_ids); with the piece apart
+    they read 5.8 deg apart and the loose-face rule held them (10.2 -> 2.5 deg; the rule's own
+    cases are in test_candidates)."""
     import sparseart
     from sparseart.bench.evaluate import evaluate
     from sparseart.bench.grid import grid_settings
@@ -348,7 +350,8 @@ def test_a_drawer_front_read_loosely_holds_the_slide_where_the_data_cannot_tell(
     rows = evaluate(result, load_scene(scene_dir), gt)
     assert len(rows) == 1 and rows[0]["type_correct"] and rows[0]["axis_deg"] < 5.0, rows
     joint = next(joint for _, joint in result.joints)
-    assert joint.diagnostics["free_slide"]["face_states_deg"] > 5.0
+    assert any("slide taken along the part's face normal" in w for w in joint.warnings)
+    assert joint.diagnostics["free_slide"]["face_states_deg"] < 10.0
 
 
 def _robot_run(tmp_path, name: str, setting_name: str, seed: int = 0):
