@@ -56,8 +56,17 @@ def test_a_turn_that_a_sibling_slide_explains_as_well_becomes_that_slide():
     assert slides_like_siblings(joints, points, {1: {}, 2: {}}, free_type={2}) == {}
     big = {2: (sibling_points[0] * 3.0, sibling_points[1] * 3.0)}
     assert slides_like_siblings(joints, {**points, **big}, {1: {}, 2: {}}, free_type={1, 2}) == {}
-    # a sibling that does not fix its own direction lends none
+    # a sibling that does not fix its own direction lends none ...
     assert slides_like_siblings({1: turn, 2: _sibling(sigma=20.0)}, points, {1: {}, 2: {}}, free_type={1, 2}) == {}
+    # ... unless it runs along an axis of the static body's faces (within 10 deg: here 8)
+    tilt = Rotation.from_euler("x", 8.0, degrees=True).as_matrix()
+    body = tilt @ np.eye(3)
+    lent = slides_like_siblings({1: turn, 2: _sibling(sigma=20.0)}, points, {1: {}, 2: {}}, free_type={1, 2},
+                                body_axes=body)
+    assert set(lent) == {1} and abs(lent[1].axis @ SLIDE) > 1 - 1e-9
+    askew = Rotation.from_euler("x", 12.0, degrees=True).as_matrix()
+    assert slides_like_siblings({1: turn, 2: _sibling(sigma=20.0)}, points, {1: {}, 2: {}}, free_type={1, 2},
+                                body_axes=askew) == {}
 
 
 def test_a_half_turn_among_sliding_siblings_gives_way_more_easily():

@@ -85,7 +85,7 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
     fitted = {r.spec.id: r for r in results if r.joint is not None}
     turned_to_slides = slides_like_siblings({pid: r.joint for pid, r in fitted.items()},
                                             {pid: inputs[pid][0] for pid in fitted},
-                                            {pid: inputs[pid][1] for pid in fitted}, free_type)
+                                            {pid: inputs[pid][1] for pid in fitted}, free_type, body_axes)
     for pid, joint in turned_to_slides.items():
         fitted[pid].joint = joint
     for pid, result in fitted.items():
