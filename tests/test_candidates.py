@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from sparseart.joints.body_axes import static_body_axes
 from sparseart.joints.candidates import (body_axis_fits, detached_slide_seeds, mirror_seed, plausible_fits,
-                                        static_body_axes, without_half_turns)
+                                        without_half_turns)
 from sparseart.joints.config import FitConfig
 from sparseart.types import JointEstimate
 

@@ -12,9 +12,10 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from sparseart.geometry.clouds import median_spacing, rms_radius, slab_axes
-from sparseart.geometry.planes import best_by_truncated_chamfer, hinge_turns, manhattan_frame, ransac_plane
+from sparseart.geometry.planes import best_by_truncated_chamfer, hinge_turns, ransac_plane
 from sparseart.geometry.sampling import random_subset
 from sparseart.geometry.transforms import axis_angle_deg
+from sparseart.joints.body_axes import along_body_axes, static_body_axes
 from sparseart.joints.clean import estimate_normals
 from sparseart.joints.fit import FitConfig, fit_joint
 from sparseart.joints.reliability import HALF_TURN_DEG, MAX_AXIS_SIGMA_DEG
@@ -117,8 +118,8 @@ def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndar
     a revolute hypothesis from the part's planes that a slide never needs (and that under noise
     fitted a slide as a 9.5 deg flap; ~0.14 s per part). views: the view index of each start /
     end point (:func:`along_front_normal` reads the face per view). body_axes: (3, 3) columns, the
-    static body's Manhattan frame (:func:`static_body_axes`; None: no body-axis re-fits,
-    :func:`body_axis_fits`).
+    static body's Manhattan frame (:func:`~sparseart.joints.body_axes.static_body_axes`; None: no
+    body-axis re-fits, :func:`body_axis_fits`).
     Raises ValueError (from the fitter) when no seed gives a fit.
     """
     colours = dict(start_colors=start_colors, end_colors=end_colors, config=config,
@@ -251,32 +252,17 @@ def static_axis_seeds(joint: JointEstimate, static_points: np.ndarray | None) ->
                             abs(float(joint.distance)), skip_near=joint.axis)
 
 
-BODY_FRAME_POINTS = 20000   # static points (strided) whose normals give the body's Manhattan frame
-BODY_AXIS_FAR_DEG = 10.0    # a slide farther than this from every axis of the body's frame is re-fitted from each
-
-
-def static_body_axes(static_points: np.ndarray | None) -> np.ndarray | None:
-    """(3, 3) columns: the static body's Manhattan frame (the normals of its dominant faces,
-    :func:`~sparseart.geometry.planes.manhattan_frame`) from at most ``BODY_FRAME_POINTS`` of
-    ``static_points`` ((S, 3) float64, scene frame); None with fewer than 50. Unlike the principal
-    axes, the faces do not move with what else the static part holds: measured on the realistic
-    oven renders (seeds 0, 2, 3) its axes lay 0.9-4.2 deg from the racks' slide, the principal axes
-    8.4-15.8 deg. O(S log S) for the normals."""
-    if static_points is None or len(static_points) < 50:
-        return None
-    return manhattan_frame(static_points[:: max(1, len(static_points) // BODY_FRAME_POINTS)])
-
-
 def body_axis_fits(joint: JointEstimate, body_axes: np.ndarray | None,
                    attempt: Callable[[np.ndarray], JointEstimate]) -> list[JointEstimate]:
     """Slide fits started from the static body's axes, for a slide that runs along none of them.
 
-    Drawers, racks and trays slide along their carcass' axes. A slide fitted more than
-    ``BODY_AXIS_FAR_DEG`` from every axis of ``body_axes`` ((3, 3) columns,
-    :func:`static_body_axes`) is fitted again from a slide of the same length along each axis
-    (``attempt``: seed (4, 4) -> prismatic fit); a re-fit that stays in its axis' basin (ends
-    nearer that axis than the first fit) and fits at least as well (residual <= the first fit's)
-    is returned, to be chosen among the candidates. Why: a wire rack matches itself after a shift
+    Drawers, racks and trays slide along their carcass' axes. A slide that runs along none of the
+    axes of ``body_axes`` ((3, 3) columns, :func:`~sparseart.joints.body_axes.static_body_axes`;
+    none within ``BODY_AXIS_WINDOW_DEG``, :func:`~sparseart.joints.body_axes.along_body_axes`) is
+    fitted again from a slide of the same length along each axis (``attempt``: seed (4, 4) ->
+    prismatic fit); a re-fit that stays in its axis' basin (ends nearer that axis than the first
+    fit) and fits at least as well (residual <= the first fit's) is returned, to be chosen among
+    the candidates. Why: a wire rack matches itself after a shift
     along its wires by any length, so under depth noise its free fit settles on a slide tilted in
     its plane (realistic oven, seed 2: 38 deg off, residual 0.0448; from the body's axis 8 deg
     off, 0.0432, ending 10.4 deg from that axis and 31 deg from the first fit). Fits within the
@@ -285,7 +271,7 @@ def body_axis_fits(joint: JointEstimate, body_axes: np.ndarray | None,
     no frame. Up to 3 fits."""
     if joint.type != "prismatic" or not joint.distance or body_axes is None:
         return []
-    if min(axis_angle_deg(joint.axis, axis) for axis in body_axes.T) <= BODY_AXIS_FAR_DEG:
+    if along_body_axes(joint.axis, body_axes):
         return []
     found = []
     for seed in body_axis_slides(body_axes, joint.axis * float(joint.distance), abs(float(joint.distance))):
@@ -314,9 +300,10 @@ def principal_axes(points: np.ndarray | None) -> np.ndarray | None:
 def body_axis_slides(axes: np.ndarray | None, direction: np.ndarray, length: float,
                      skip_near: np.ndarray | None = None) -> list[np.ndarray]:
     """(4, 4) translations by ``length`` along each axis (column) of ``axes`` ((3, 3), e.g.
-    :func:`principal_axes` of the static part or :func:`static_body_axes`), each pointing with
-    ``direction`` (3,); axes within ``STATIC_AXIS_SEED_MIN_DEG`` of ``skip_near`` are left out.
-    Empty without axes. O(1)."""
+    :func:`principal_axes` of the static part or
+    :func:`~sparseart.joints.body_axes.static_body_axes`), each pointing with ``direction`` (3,);
+    axes within ``STATIC_AXIS_SEED_MIN_DEG`` of ``skip_near`` are left out. Empty without axes.
+    O(1)."""
     if axes is None:
         return []
     seeds = []

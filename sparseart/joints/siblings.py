@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from sparseart.geometry.clouds import rms_radius
-from sparseart.geometry.transforms import axis_angle_deg
+from sparseart.joints.body_axes import along_body_axes
 from sparseart.joints.fit import fit_joint
 from sparseart.joints.reliability import HALF_TURN_DEG
 from sparseart.types import JointEstimate
@@ -31,14 +31,12 @@ HALF_TURN_SIBLING_RATIO = 2.0
 # Siblings are alike in size: the turned part's RMS radius within this factor of the slide's (end state,
 # where a pulled-out part is seen best).
 SIBLING_SIZE_RATIO = 2.0
-# A sibling slide whose stated axis sigma is above this does not fix a direction for others ...
+# A sibling slide whose stated axis sigma is above this does not fix a direction for others, unless
+# it runs along an axis of the static body's faces (body_axes.along_body_axes: two independent
+# readings agree; measured on the realistic oven, seed 3, a rack slide 5.3 deg off the truth and
+# 8.2 deg off the body's axis, whose sigma a rival slide had widened to 15.9 deg; its sibling rack,
+# fitted as a 17 deg turn 89 deg off, slides along it at 5.3 deg and 0.81 x the turn's residual).
 SIBLING_MAX_AXIS_SIGMA_DEG = 10.0
-# ... unless it runs within this of an axis of the static body's faces, the window within which
-# candidates.body_axis_fits calls a slide one along the body (two independent readings agree:
-# measured on the realistic oven, seed 3, a rack slide 5.3 deg off the truth and 8.2 deg off the
-# body's axis, whose sigma a rival slide had widened to 15.9 deg; its sibling rack, fitted as a
-# 17 deg turn 89 deg off, slides along it at 5.3 deg and 0.81 x the turn's residual).
-SIBLING_BODY_AXIS_DEG = 10.0
 
 
 def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tuple[np.ndarray, np.ndarray]],
@@ -50,9 +48,10 @@ def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tup
     points, the fits' frame; fit_options: part id -> the keyword arguments of its fits (colours,
     config, confidences, frame error); free_type: the ids whose type may change (not given by
     the user or the labeler); body_axes: (3, 3) columns, the static body's Manhattan frame
-    (:func:`~sparseart.joints.candidates.static_body_axes`) or None. For every revolute part among
+    (:func:`~sparseart.joints.body_axes.static_body_axes`) or None. For every revolute part among
     them, every prismatic sibling whose axis sigma is at most ``SIBLING_MAX_AXIS_SIGMA_DEG`` (or
-    whose axis lies within ``SIBLING_BODY_AXIS_DEG`` of a body axis) and whose RMS radius (end state) is
+    whose axis runs along a body axis, :func:`~sparseart.joints.body_axes.along_body_axes`) and
+    whose RMS radius (end state) is
     within ``SIBLING_SIZE_RATIO`` of the part's lends its axis; the part is fitted as a slide held
     to it (only the distance free), and the best such fit replaces the turn when its residual is
     within ``SIBLING_RESIDUAL_RATIO`` of the turn's (``HALF_TURN_SIBLING_RATIO`` for a half-turn).
@@ -61,11 +60,9 @@ def slides_like_siblings(joints: dict[int, JointEstimate], points: dict[int, tup
     the turn's axis, angle and residual. Returns part id -> replacement (only the replaced
     parts). O(T S) held fits for T turns and S slides.
     """
-    def along_body(axis: np.ndarray) -> bool:
-        return body_axes is not None and min(axis_angle_deg(axis, b) for b in body_axes.T) <= SIBLING_BODY_AXIS_DEG
-
     slides = {pid: j for pid, j in joints.items() if j.type == "prismatic" and j.distance
-              and (float(j.uncertainty.get("axis_deg", 0.0)) <= SIBLING_MAX_AXIS_SIGMA_DEG or along_body(j.axis))}
+              and (float(j.uncertainty.get("axis_deg", 0.0)) <= SIBLING_MAX_AXIS_SIGMA_DEG
+                   or along_body_axes(j.axis, body_axes))}
     radii = {pid: rms_radius(end) for pid, (_, end) in points.items()}   # end state: a pulled-out part seen best
     replaced: dict[int, JointEstimate] = {}
     for pid, turn in joints.items():

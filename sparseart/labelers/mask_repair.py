@@ -88,7 +88,7 @@ def split_mask_ids(before: LabelledCloud, after: LabelledCloud) -> frozenset[int
     was cut from (:func:`~.correspondence.distinct_by_masks`). A merge hands over the swallowed
     part's points under an id the other images use too (measured on a realistic oven: a rack's id
     swallowed a door in one image, 1279 of its 1500 points there; the rack keeps its id), so it
-    keeps its name. O(N)."""
+    keeps its name. O(K N) for K mask ids (a handful)."""
     old, new = before.mask_ids(), after.mask_ids()
     found = []
     for mask_id in np.unique(old[old > 0]).tolist():
