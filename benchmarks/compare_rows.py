@@ -5,7 +5,8 @@
 Rows of one method are paired by (object, setting, joint name) in the order they occur (one row
 per seed, seeds in the same order in both runs; rows present in only one run are left out and
 counted). Per setting it prints the joints, the successes (axis error < 10 deg; an unmatched
-joint counts ``UNMATCHED_AXIS_DEG``, 90), the correct types and the median axis error before -> after; then every
+joint counts ``UNMATCHED_AXIS_DEG``, 90), the correct types, the median axis error and the movable
+parts that match no true joint (``extra parts``) before -> after; then every
 paired row whose axis error moved by more than ``--degrees``, crossed the 10 deg line or changed
 its predicted type. O(R log R) for R rows.
 """
@@ -48,6 +49,22 @@ def pair_rows(before: list[dict], after: list[dict]) -> tuple[list[tuple[dict, d
     return pairs, unpaired
 
 
+def extra_parts(rows: list[dict]) -> int | None:
+    """Movable parts reported beyond the true joints they were matched to, summed over scenes (as
+    ``sparseart.bench.grid.extra_parts``); None when the rows carry no ``n_predicted``. A scene is
+    (object, setting, seed); rows written before the seed column was added tell their scenes apart
+    by ``pipeline_seconds``. O(R)."""
+    if not rows or any(not row.get("n_predicted") for row in rows):
+        return None
+    predicted: dict[tuple, int] = {}
+    matched: dict[tuple, int] = defaultdict(int)
+    for row in rows:
+        key = (row["object"], row["setting"], row.get("seed") or row.get("pipeline_seconds"))
+        predicted[key] = int(row.get("n_predicted") or 0)
+        matched[key] += row["unmatched"] not in ("True", "true", "1")
+    return sum(max(0, predicted[key] - matched[key]) for key in predicted)
+
+
 def report(pairs: list[tuple[dict, dict]], degrees: float) -> list[str]:
     lines = []
     for setting in sorted({b["setting"] for b, _ in pairs}):
@@ -56,9 +73,10 @@ def report(pairs: list[tuple[dict, dict]], degrees: float) -> list[str]:
         ea = np.array([axis_error(a) for _, a in chosen])
         tb = sum(b["type_correct"] == "True" for b, _ in chosen)
         ta = sum(a["type_correct"] == "True" for _, a in chosen)
+        xb, xa = extra_parts([b for b, _ in chosen]), extra_parts([a for _, a in chosen])
         lines.append(f"{setting}: n {len(chosen)} success {int((eb < SUCCESS_AXIS_DEG).sum())} -> "
                      f"{int((ea < SUCCESS_AXIS_DEG).sum())}, type {tb} -> {ta}, median {np.median(eb):.2f} -> "
-                     f"{np.median(ea):.2f}")
+                     f"{np.median(ea):.2f}" + ("" if xb is None or xa is None else f", extra parts {xb} -> {xa}"))
     for b, a in pairs:
         x, y = axis_error(b), axis_error(a)
         if abs(x - y) > degrees or (x < SUCCESS_AXIS_DEG) != (y < SUCCESS_AXIS_DEG) or b["pred_type"] != a["pred_type"]:

@@ -236,3 +236,26 @@ def test_seconds_are_read_over_every_seed_s_scene():
     rows = [row(0, 1.0), row(0, 1.0), row(1, 3.0), row(2, 8.0)]
     stats = _stage_stats(rows)
     assert stats["seconds_median"] == 3.0 and stats["fit_seconds_median"] == 1.5
+
+
+def test_extra_parts_count_predictions_matched_to_no_true_joint():
+    """A scene reporting more movable parts than the true joints it matched has extra parts (an
+    arm or a strip of a lid taken for a part); success and axis error cannot show them. Counted
+    once per scene (object, setting, method, seed), in the summary, the table and the CSV's seed."""
+    from sparseart.bench.grid import aggregate, extra_parts, rows_csv, summary_table
+
+    def row(obj: str, seed: int, predicted: int, unmatched: bool) -> dict:
+        return {"object": obj, "setting": "robot-1view", "method": "sparseart", "config": {"seed": seed},
+                "name": "joint_0", "n_predicted": predicted, "unmatched": unmatched, "axis_deg": 1.0,
+                "type_correct": True, "gt_type": "revolute", "position": 0.0, "state": 0.0,
+                "pipeline_seconds": 1.0, "stage_seconds": {}}
+
+    rows = [row("oven", 0, 3, False), row("oven", 0, 3, True),   # two joints, one matched, three parts: 2 extra
+            row("box", 0, 1, False), row("box", 1, 2, False),     # seed 1 of the box: 1 extra
+            row("door", 0, 0, True)]                              # nothing found: no extra
+    assert extra_parts(rows) == {"extra_parts": 3, "extra_scenes": 2}
+    summary = aggregate(rows, ("setting", "method"))
+    assert summary[0]["extra_parts"] == 3 and summary[0]["extra_scenes"] == 2
+    assert summary_table(summary).splitlines()[0].split()[-1] == "extra"
+    assert summary_table(summary).splitlines()[1].split()[-1] == "3"
+    assert rows_csv(rows).splitlines()[0].split(",")[-1] == "seed"

@@ -40,3 +40,25 @@ def test_compare_rows_pairs_seeds_in_order_and_lists_what_moved(tmp_path, capsys
     moved = [line.split() for line in lines[1:-1]]
     assert [(m[0], m[3], m[5]) for m in moved] == [("door", "12.00", "4.00"), ("oven", "90.00", "2.00")]
     assert lines[-1] == "(1 rows present in one run only were left out)"
+
+
+def test_compare_rows_counts_extra_parts_per_scene(tmp_path, capsys):
+    """Parts reported beyond the true joints they matched, per scene (object, setting, seed)."""
+    fields = FIELDS + ["n_predicted", "seed"]
+
+    def write(path, rows):
+        with open(path, "w", newline="") as handle:
+            writer = csv.DictWriter(handle, fields)
+            writer.writeheader()
+            for row in rows:
+                writer.writerow(dict(zip(fields, row)))
+
+    def oven(seed, predicted, second_unmatched):
+        return [("oven", "robot", "sparseart", "joint_0", "revolute", "revolute", "True", "False", "1.0", predicted, seed),
+                ("oven", "robot", "sparseart", "joint_1", "revolute", "", "False", str(second_unmatched), "90.0",
+                 predicted, seed)]
+
+    write(tmp_path / "a.csv", oven(0, 1, True) + oven(1, 2, False))     # every part matched
+    write(tmp_path / "b.csv", oven(0, 3, True) + oven(1, 2, False))     # seed 0: 3 parts for 1 match
+    assert _load().main([str(tmp_path / "a.csv"), str(tmp_path / "b.csv")]) == 0
+    assert capsys.readouterr().out.splitlines()[0].endswith("extra parts 0 -> 2")

@@ -188,10 +188,15 @@ def run_grid(objects: list[Path], out_dir: Path, settings: list[BenchSetting], p
     return rows, failures
 
 
+def _scene_key(row: dict[str, Any]) -> tuple:
+    """One scene per object, setting, method and seed (every seed renders its own scene)."""
+    return row["object"], row["setting"], row["method"], row.get("config", {}).get("seed")
+
+
 def _stage_stats(rows: list[dict[str, Any]]) -> dict[str, float]:
     """Median seconds per stage and in total over the distinct scenes of ``rows`` (one per object,
     setting, method and seed: every seed renders its own scene)."""
-    scenes = {(r["object"], r["setting"], r["method"], r.get("config", {}).get("seed")): r for r in rows}.values()
+    scenes = {_scene_key(r): r for r in rows}.values()
     out = {"seconds_median": statistics.median(r["pipeline_seconds"] for r in scenes),
            "seconds_mean": statistics.fmean(r["pipeline_seconds"] for r in scenes)}
     for stage in STAGES:
@@ -199,6 +204,23 @@ def _stage_stats(rows: list[dict[str, Any]]) -> dict[str, float]:
         if values:
             out[f"{stage}_seconds_median"] = statistics.median(values)
     return out
+
+
+def extra_parts(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """Movable parts reported that match no true joint: per distinct scene (:func:`_scene_key`)
+    the predicted parts (``n_predicted``) beyond the true joints they were matched to (rows not
+    ``unmatched``). A part that did not move, or an arm taken for one, tells a robot something
+    moved that did not; success and axis error cannot show it (the evaluation pairs predictions
+    with true joints and drops the rest). Returns {"extra_parts": total, "extra_scenes": scenes
+    with any}. O(R)."""
+    predicted: dict[tuple, int] = {}
+    matched: dict[tuple, int] = {}
+    for row in rows:
+        key = _scene_key(row)
+        predicted[key] = int(row.get("n_predicted") or 0)
+        matched[key] = matched.get(key, 0) + (not row.get("unmatched", False))
+    extra = [max(0, predicted[key] - matched[key]) for key in predicted]
+    return {"extra_parts": sum(extra), "extra_scenes": sum(e > 0 for e in extra)}
 
 
 def aggregate(rows: list[dict[str, Any]], keys: tuple[str, ...]) -> list[dict[str, Any]]:
@@ -213,6 +235,7 @@ def aggregate(rows: list[dict[str, Any]], keys: tuple[str, ...]) -> list[dict[st
         entry.update({k: config[k] for k in CONFIG_FIELDS if k in config})
         entry.update(metrics.summarise(group))
         entry.update(_stage_stats(group))
+        entry.update(extra_parts(group))
         out.append(entry)
     return out
 
@@ -227,17 +250,20 @@ def _fmt(value: Any, digits: int = 3) -> str:
 
 def summary_table(summary: list[dict[str, Any]]) -> str:
     """One line per setting and method: type accuracy, success, axis mean/median, position median,
-    state medians, median seconds, and the share of successful joints whose axis error is within the
-    stated 1-sigma (``1σ cov``; ~63 % is honest for the axis angle)."""
+    state medians, median seconds, the share of successful joints whose axis error is within the
+    stated 1-sigma (``1σ cov``; ~63 % is honest for the axis angle) and the movable parts reported
+    that match no true joint (``extra``, :func:`extra_parts`)."""
     header = (f"{'setting':17s} {'method':9s} {'n':>3s} {'type':>5s} {'succ':>5s} {'axis mean':>9s} "
-              f"{'axis med':>8s} {'pos med':>8s} {'rev° med':>8s} {'pris med':>8s} {'sec med':>7s} {'1σ cov':>6s}")
+              f"{'axis med':>8s} {'pos med':>8s} {'rev° med':>8s} {'pris med':>8s} {'sec med':>7s} {'1σ cov':>6s} "
+              f"{'extra':>5s}")
     lines = [header]
     for s in summary:
         lines.append(f"{s['setting']:17s} {s['method']:9s} {s['count']:3d} {_fmt(s['type_accuracy'], 2):>5s} "
                      f"{_fmt(s['success_rate'], 2):>5s} {_fmt(s['axis_deg_mean'], 2):>9s} "
                      f"{_fmt(s['axis_deg_median'], 2):>8s} {_fmt(s['position_median'], 4):>8s} "
                      f"{_fmt(s['state_revolute_deg_median'], 2):>8s} {_fmt(s['state_prismatic_median'], 4):>8s} "
-                     f"{_fmt(s['seconds_median'], 2):>7s} {_fmt(s.get('sigma_coverage'), 2):>6s}")
+                     f"{_fmt(s['seconds_median'], 2):>7s} {_fmt(s.get('sigma_coverage'), 2):>6s} "
+                     f"{_fmt(s.get('extra_parts')):>5s}")
     return "\n".join(lines)
 
 
@@ -263,7 +289,7 @@ def ratio_note(summary: list[dict[str, Any]]) -> str:
 
 CSV_FIELDS = ("object", "setting", "method", "name", "gt_type", "pred_type", "type_correct", "unmatched",
               "axis_deg", "position", "state", "render_seconds", "pipeline_seconds",
-              *(f"{s}_seconds" for s in STAGES), "n_predicted", "n_warnings")
+              *(f"{s}_seconds" for s in STAGES), "n_predicted", "n_warnings", "seed")
 
 
 def rows_csv(rows: list[dict[str, Any]]) -> str:
@@ -271,7 +297,7 @@ def rows_csv(rows: list[dict[str, Any]]) -> str:
     writer = csv.DictWriter(buffer, fieldnames=CSV_FIELDS, extrasaction="ignore")
     writer.writeheader()
     for row in rows:
-        flat = dict(row, n_warnings=len(row.get("warnings", [])))
+        flat = dict(row, n_warnings=len(row.get("warnings", [])), seed=row.get("config", {}).get("seed"))
         flat.update({f"{s}_seconds": row["stage_seconds"].get(s) for s in STAGES})
         writer.writerow(flat)
     return buffer.getvalue()
