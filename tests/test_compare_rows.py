@@ -14,12 +14,12 @@ def _load():
     return module
 
 
-def _write(path, rows):
+def _write(path, rows, fields=FIELDS):
     with open(path, "w", newline="") as handle:
-        writer = csv.DictWriter(handle, FIELDS)
+        writer = csv.DictWriter(handle, fields)
         writer.writeheader()
         for row in rows:
-            writer.writerow(dict(zip(FIELDS, row)))
+            writer.writerow(dict(zip(fields, row)))
 
 
 def test_compare_rows_pairs_seeds_in_order_and_lists_what_moved(tmp_path, capsys):
@@ -45,20 +45,12 @@ def test_compare_rows_pairs_seeds_in_order_and_lists_what_moved(tmp_path, capsys
 def test_compare_rows_counts_extra_parts_per_scene(tmp_path, capsys):
     """Parts reported beyond the true joints they matched, per scene (object, setting, seed)."""
     fields = FIELDS + ["n_predicted", "seed"]
-
-    def write(path, rows):
-        with open(path, "w", newline="") as handle:
-            writer = csv.DictWriter(handle, fields)
-            writer.writeheader()
-            for row in rows:
-                writer.writerow(dict(zip(fields, row)))
-
     def oven(seed, predicted, second_unmatched):
         return [("oven", "robot", "sparseart", "joint_0", "revolute", "revolute", "True", "False", "1.0", predicted, seed),
                 ("oven", "robot", "sparseart", "joint_1", "revolute", "", "False", str(second_unmatched), "90.0",
                  predicted, seed)]
 
-    write(tmp_path / "a.csv", oven(0, 1, True) + oven(1, 2, False))     # every part matched
-    write(tmp_path / "b.csv", oven(0, 3, True) + oven(1, 2, False))     # seed 0: 3 parts for 1 match
+    _write(tmp_path / "a.csv", oven(0, 1, True) + oven(1, 2, False), fields)     # every part matched
+    _write(tmp_path / "b.csv", oven(0, 3, True) + oven(1, 2, False), fields)     # seed 0: 3 parts for 1 match
     assert _load().main([str(tmp_path / "a.csv"), str(tmp_path / "b.csv")]) == 0
     assert capsys.readouterr().out.splitlines()[0].endswith("extra parts 0 -> 2")
