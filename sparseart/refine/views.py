@@ -4,8 +4,15 @@ cameras, depth, background colour and a per-pixel weight.
 Cameras: posed scenes use their ``cam_to_world``. Unposed scenes (results in the first start
 camera's frame, the end state registered by the pipeline) recover each used frame's pose from
 its own points: the cloud holds, for every valid pixel, both the pixel index and the point in the
-scene frame, so the camera -> scene transform is the Kabsch fit between the unprojected pixels
-and the cloud points (exact up to round-off).
+scene frame, so the camera -> scene transform is the similarity between the unprojected pixels
+and the cloud points (exact up to round-off; its scale is the view's registered depth scale,
+and the camera keeps its rotation and centre).
+
+Targets: the depth of a view is read off the cloud (its points' camera z, after the pipeline's
+depth corrections), and pixels that hold depth but no cloud point -- the room, the table, a
+hand, parts not modelled -- carry no weight: no Gaussian models them, so they are neither to be
+filled nor to be left empty (measured on realistic renders, where the crop around the object
+holds the table and wall: before, the silhouette term asked the Gaussians to cover them).
 """
 from __future__ import annotations
 
@@ -50,9 +57,11 @@ def scaled_intrinsics(K: np.ndarray, scale_x: float, scale_y: float) -> np.ndarr
 
 def recover_cam_to_world(frame_depth: np.ndarray, K: np.ndarray, cloud: LabelledCloud,
                          frame_index: int) -> np.ndarray | None:
-    """(4, 4) camera -> scene transform of one frame from its points in ``cloud`` (Kabsch between
-    the unprojected pixels and the cloud points); None with fewer than 3 points. O(N)."""
-    from sparseart.geometry.transforms import kabsch, make_transform
+    """(4, 4) rigid camera -> scene transform of one frame from its points in ``cloud``: the
+    rotation and camera centre of the similarity between the unprojected pixels and the cloud
+    points (Umeyama); None with fewer than 3 points. O(N)."""
+    from sparseart.align.ransac import umeyama
+    from sparseart.geometry.transforms import make_transform
     from ..lift.rgbd import pixel_rays
 
     here = cloud.frame_index == frame_index
@@ -61,11 +70,27 @@ def recover_cam_to_world(frame_depth: np.ndarray, K: np.ndarray, cloud: Labelled
     height, width = frame_depth.shape
     pixels = cloud.pixel_index[here]
     camera_points = pixel_rays(K, height, width)[pixels] * frame_depth.reshape(-1)[pixels][:, None]
-    rotation, translation = kabsch(camera_points, cloud.points[here])
-    return make_transform(rotation, translation)
+    # a similarity: a view registered with its own depth scale lies scaled about its camera
+    # centre, which the rigid part of the similarity keeps (a rigid fit would shift it)
+    fit = umeyama(camera_points, cloud.points[here], with_scale=True)
+    return make_transform(fit.rotation, fit.translation)
 
 
 CROP_MARGIN = 0.1   # fraction of the object's box added on each side of the crop
+
+
+def _cloud_depth(cloud: LabelledCloud, here: np.ndarray, cam_to_world: np.ndarray, height: int,
+                 width: int) -> np.ndarray:
+    """(H, W) float64 depth of one frame read off the cloud: the camera z of each of its points
+    (``here``: (N,) bool) at its pixel, 0 elsewhere. The cloud is what the Gaussians are built
+    from, after the pipeline's per-view depth scale and depth-ratio corrections; the frame's raw
+    depth differs from it by those (1-3 % on reconstructor-grade depth). O(N)."""
+    points = cloud.points[here]
+    world_to_cam = np.linalg.inv(cam_to_world)
+    z = points @ world_to_cam[2, :3] + world_to_cam[2, 3]
+    depth = np.zeros(height * width, dtype=np.float64)
+    depth[cloud.pixel_index[here]] = np.maximum(z, 0.0)
+    return depth.reshape(height, width)
 
 
 def crop_box(rows: np.ndarray, cols: np.ndarray, height: int, width: int) -> tuple[int, int, int, int]:
@@ -112,6 +137,12 @@ def build_views(scene: Scene, cloud: LabelledCloud, part_of_point: np.ndarray, m
         here = cloud.frame_index == frame.index
         foreign = ~np.isin(part_of_point[here], list(modelled_parts) + [-1])
         excluded[cloud.pixel_index[here][foreign]] = 1.0
+        if frame.depth is not None:
+            # a pixel with depth but no point of the cloud (the room, the table, a hand, a pixel the
+            # lift dropped) shows something no Gaussian models: neither filled nor empty
+            unmodelled = np.asarray(frame.depth, dtype=np.float64).reshape(-1) > 0
+            unmodelled[cloud.pixel_index[here]] = False
+            excluded[unmodelled] = 1.0
         rows, cols = np.unravel_index(cloud.pixel_index[here], (full_h, full_w))
         y0, y1, x0, x1 = crop_box(rows, cols, full_h, full_w)
         height, width = y1 - y0, x1 - x0
@@ -124,7 +155,7 @@ def build_views(scene: Scene, cloud: LabelledCloud, part_of_point: np.ndarray, m
         rgb = cv2.resize(frame.rgb[y0:y1, x0:x1], (new_w, new_h), interpolation=cv2.INTER_AREA).astype(np.float64) / 255.0
         depth = None
         if frame.depth is not None:
-            depth = cv2.resize(frame.depth[y0:y1, x0:x1].astype(np.float64), (new_w, new_h),
+            depth = cv2.resize(_cloud_depth(cloud, here, cam_to_world, full_h, full_w)[y0:y1, x0:x1], (new_w, new_h),
                                interpolation=cv2.INTER_NEAREST)
         excluded = cv2.resize(excluded.reshape(full_h, full_w)[y0:y1, x0:x1], (new_w, new_h),
                               interpolation=cv2.INTER_AREA)
