@@ -19,6 +19,7 @@ from collections import defaultdict
 
 import numpy as np
 
+from sparseart.bench.grid import extra_parts as grid_extra_parts
 from sparseart.bench.metrics import SUCCESS_AXIS_DEG, UNMATCHED_AXIS_DEG
 
 
@@ -50,19 +51,16 @@ def pair_rows(before: list[dict], after: list[dict]) -> tuple[list[tuple[dict, d
 
 
 def extra_parts(rows: list[dict]) -> int | None:
-    """Movable parts reported beyond the true joints they were matched to, summed over scenes (as
-    ``sparseart.bench.grid.extra_parts``); None when the rows carry no ``n_predicted``. A scene is
-    (object, setting, seed); rows written before the seed column was added tell their scenes apart
-    by ``pipeline_seconds``. O(R)."""
+    """Movable parts reported beyond the true joints they were matched to, summed over scenes:
+    :func:`sparseart.bench.grid.extra_parts` on the CSV rows; None when the rows carry no
+    ``n_predicted``. Rows written before the seed column was added tell their scenes apart by
+    ``pipeline_seconds``. O(R)."""
     if not rows or any(not row.get("n_predicted") for row in rows):
         return None
-    predicted: dict[tuple, int] = {}
-    matched: dict[tuple, int] = defaultdict(int)
-    for row in rows:
-        key = (row["object"], row["setting"], row.get("seed") or row.get("pipeline_seconds"))
-        predicted[key] = int(row.get("n_predicted") or 0)
-        matched[key] += row["unmatched"] not in ("True", "true", "1")
-    return sum(max(0, predicted[key] - matched[key]) for key in predicted)
+    return grid_extra_parts([{"object": row["object"], "setting": row["setting"], "method": row["method"],
+                              "config": {"seed": row.get("seed") or row.get("pipeline_seconds")},
+                              "n_predicted": int(row["n_predicted"]),
+                              "unmatched": row["unmatched"] in ("True", "true", "1")} for row in rows])["extra_parts"]
 
 
 def report(pairs: list[tuple[dict, dict]], degrees: float) -> list[str]:

@@ -79,15 +79,13 @@ def recover_cam_to_world(frame_depth: np.ndarray, K: np.ndarray, cloud: Labelled
 CROP_MARGIN = 0.1   # fraction of the object's box added on each side of the crop
 
 
-def _cloud_depth(cloud: LabelledCloud, here: np.ndarray, cam_to_world: np.ndarray, height: int,
+def _cloud_depth(cloud: LabelledCloud, here: np.ndarray, world_to_cam: np.ndarray, height: int,
                  width: int) -> np.ndarray:
     """(H, W) float64 depth of one frame read off the cloud: the camera z of each of its points
     (``here``: (N,) bool) at its pixel, 0 elsewhere. The cloud is what the Gaussians are built
     from, after the pipeline's per-view depth scale and depth-ratio corrections; the frame's raw
     depth differs from it by those (1-3 % on reconstructor-grade depth). O(N)."""
-    points = cloud.points[here]
-    world_to_cam = np.linalg.inv(cam_to_world)
-    z = points @ world_to_cam[2, :3] + world_to_cam[2, 3]
+    z = cloud.points[here] @ world_to_cam[2, :3] + world_to_cam[2, 3]
     depth = np.zeros(height * width, dtype=np.float64)
     depth[cloud.pixel_index[here]] = np.maximum(z, 0.0)
     return depth.reshape(height, width)
@@ -132,6 +130,7 @@ def build_views(scene: Scene, cloud: LabelledCloud, part_of_point: np.ndarray, m
             cam_to_world = recover_cam_to_world(frame.depth, camera.K, cloud, frame.index)
             if cam_to_world is None:
                 continue
+        world_to_cam = np.linalg.inv(cam_to_world)
         full_h, full_w = frame.shape
         excluded = np.zeros(full_h * full_w, dtype=np.float64)
         here = cloud.frame_index == frame.index
@@ -155,7 +154,7 @@ def build_views(scene: Scene, cloud: LabelledCloud, part_of_point: np.ndarray, m
         rgb = cv2.resize(frame.rgb[y0:y1, x0:x1], (new_w, new_h), interpolation=cv2.INTER_AREA).astype(np.float64) / 255.0
         depth = None
         if frame.depth is not None:
-            depth = cv2.resize(_cloud_depth(cloud, here, cam_to_world, full_h, full_w)[y0:y1, x0:x1], (new_w, new_h),
+            depth = cv2.resize(_cloud_depth(cloud, here, world_to_cam, full_h, full_w)[y0:y1, x0:x1], (new_w, new_h),
                                interpolation=cv2.INTER_NEAREST)
         excluded = cv2.resize(excluded.reshape(full_h, full_w)[y0:y1, x0:x1], (new_w, new_h),
                               interpolation=cv2.INTER_AREA)
@@ -165,7 +164,7 @@ def build_views(scene: Scene, cloud: LabelledCloud, part_of_point: np.ndarray, m
                       else np.zeros(3))
         views.append(View(
             state=cloud.state, index=frame.index,
-            camera=Camera(K=K, world_to_cam=np.linalg.inv(cam_to_world), width=new_w, height=new_h),
+            camera=Camera(K=K, world_to_cam=world_to_cam, width=new_w, height=new_h),
             rgb=torch.as_tensor(rgb, dtype=dtype), weight=torch.as_tensor(weight, dtype=dtype),
             depth=None if depth is None else torch.as_tensor(depth, dtype=dtype),
             background=torch.as_tensor(background, dtype=dtype), held_out=frame.index in held))
