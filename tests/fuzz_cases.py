@@ -302,6 +302,24 @@ def _scale_units(depth_scale: float) -> Callable[[Path], str]:
     return mutate
 
 
+def _end_poses_inverted(scene: Path) -> str:
+    """The end views' cam_to_world given as world-to-camera (a common mix-up): valid rigid
+    transforms, but the end state lands far from the start state's surfaces."""
+    data = _cameras(scene)
+    for entry in data["end"]:
+        entry["cam_to_world"] = np.linalg.inv(np.array(entry["cam_to_world"])).tolist()
+    _write_cameras(scene, data)
+    return "cameras.json"
+
+
+def _end_depth_in_other_units(scene: Path) -> str:
+    """The end views' depth PNGs written in tenths of a millimetre while depth_scale says mm."""
+    for path in sorted((scene / "end" / "depth").glob("*.png")):
+        depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.int64)
+        cv2.imwrite(str(path), np.clip(depth * 10, 0, 65534).astype(np.uint16))
+    return "cameras.json"
+
+
 def _out_file(scene: Path, tmp: Path) -> Path:
     path = tmp / "out_is_a_file"
     path.write_text("precious")
@@ -543,6 +561,9 @@ def scene_cases() -> list[Case]:
     add(Case("conf_int", "wrong types", _conf(lambda s: np.ones(s, np.int32))))
     add(Case("conf_missing_one", "missing files", _conf(None, skip="end/conf/000.npy")))
     add(Case("conf_one_state_only", "missing files", _conf(None, skip="end/conf")))
+    # ---- posed states that share no surface: a pose or a depth unit is wrong
+    add(Case("end_poses_inverted", "inconsistent states", _end_poses_inverted))
+    add(Case("end_depth_other_units", "inconsistent states", _end_depth_in_other_units))
     # ---- a hostile path: the error line must stay one line
     add(Case("newline_in_scene_name", "hostile paths", _rename_scene_with_newline, scene_name="sc\nene\x1b[31m"))
     # ---- --out
