@@ -18,7 +18,7 @@ from sparseart.clock import StageClock
 from sparseart.io.validate import validate_clouds
 from sparseart.joints.candidates import fit_parts
 from sparseart.joints.fit import FitConfig
-from sparseart.labelers.base import PartLabeler
+from sparseart.labelers.base import PartLabeler, TooLittleToLabel
 from sparseart.labelers.rules import RuleBasedLabeler, RuleLabelerConfig
 from sparseart.lift.labels import build_labelled_cloud
 from sparseart.types import JOINT_TYPES, Articulation, LabelledCloud, PartLabels, Scene, SceneError
@@ -160,6 +160,25 @@ _SUBSTAGE_WHY = {"load_model": "ONNX reconstructor: session created",
                  "match_depth": "posed: end depth matched to the start view with the same camera"}
 
 
+def _label(labeler: PartLabeler, start: LabelledCloud, end: LabelledCloud, scene: Scene | None,
+           **arguments) -> PartLabels:
+    """``labeler.label``; a state with too little to label (:class:`~sparseart.labelers.base.
+    TooLittleToLabel`: a depth map with few valid pixels, masks that leave nothing) is bad input:
+    a SceneError naming that state's depth images (or its cloud when clouds were given)."""
+    try:
+        return labeler.label(start, end, scene, **arguments)
+    except TooLittleToLabel as error:
+        cloud = start if error.state == "start" else end
+        if scene is None:
+            raise SceneError(f"{error.state} cloud ({len(cloud)} points): {error}") from None
+        frames = scene.frames(error.state)
+        depths = ", ".join(f"{error.state}/depth/{Path(f.depth_path).name}" if f.depth_path is not None
+                           else f"{error.state}/rgb/{f.rgb_path.name}" for f in frames)
+        raise SceneError(f"{scene.root / error.state} ({depths}): {len(cloud)} valid points in the "
+                         f"{error.state} state against {len(start) + len(end) - len(cloud)} in the other: {error}; "
+                         f"check the depth") from None
+
+
 def _labelled_by_motion(labels: PartLabels) -> bool:
     """Did the labeler split the points by motion (no masks)?"""
     return bool(labels.diagnostics.get("motion_split", False))
@@ -291,14 +310,14 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
     hints = list(motion_hints or [])
     if alignment == "none":
         with clock.stage("align.static", "unposed: end state registered to start through the static part"):
-            first = labeler.label(start, end, scene, aligned=False, motion_hints=[])
+            first = _label(labeler, start, end, scene, aligned=False, motion_hints=[])
             end = align_on_static(start, end, first, warnings, seed=seed)
     # A trusted feature alignment of the states (static background and body matched) or a camera
     # that did not move gives a known frame as cameras do: a part that moved is kept even when no
     # static segment of the object is seen in both states (a laptop base hidden behind its open lid).
     known_frame = True if alignment in ("features", "still") else None
     with clock.stage("label", f"part labeler: {labeler.name}"):
-        labels = labeler.label(start, end, scene, aligned=True, motion_hints=hints, posed=known_frame)
+        labels = _label(labeler, start, end, scene, aligned=True, motion_hints=hints, posed=known_frame)
     if alignment in ("features", "model"):
         with clock.stage("align.static", f"static part: ICP polish of the {alignment} alignment"):
             end, labels = polish_on_static(start, end, labels, warnings, seed=seed)

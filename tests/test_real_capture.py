@@ -56,3 +56,27 @@ def test_real_laptop_confidence_reads_the_residual_beyond_its_noise(laptop) -> N
     floor = joint.diagnostics["residual_floor"]
     assert 0.0 < floor < joint.residual
     assert joint.confidence > 0.72
+
+
+@requires_real
+def test_real_end_depth_left_in_a_patch_is_bad_input(tmp_path, capsys) -> None:
+    # A failing sensor: the end view's depth valid in a 60 x 60 pixel patch only (3600 points
+    # against 174k at start). The labeler finds no usable segment in the end state; that was an
+    # internal error (exit 1) and is now one line naming the end depth image, exit 2, nothing written.
+    import shutil
+
+    import cv2
+    from sparseart.cli import main
+
+    scene = tmp_path / "patch"
+    shutil.copytree(REAL, scene)
+    path = scene / "end" / "depth" / "000.png"
+    depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    kept = np.zeros_like(depth)
+    kept[200:260, 300:360] = depth[200:260, 300:360]
+    cv2.imwrite(str(path), kept)
+    out = tmp_path / "out"
+    assert main(["run", str(scene), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "end/depth/000.png" in err[0] and "valid points in the end state" in err[0], err
+    assert not out.exists()

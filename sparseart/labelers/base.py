@@ -8,6 +8,15 @@ import numpy as np
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 
 
+class TooLittleToLabel(ValueError):
+    """A state holds too few usable points to label parts (``state``: "start" | "end"); the
+    pipeline reports it as bad input naming that state's depth images."""
+
+    def __init__(self, message: str, state: str) -> None:
+        super().__init__(message)
+        self.state = state
+
+
 @runtime_checkable
 class PartLabeler(Protocol):
     """Decides the parts of an object from its labelled clouds in the two states.

@@ -43,6 +43,7 @@ from scipy.spatial import cKDTree
 from sparseart.geometry.clouds import median_spacing, normals_with_variation, radius_components
 from sparseart.geometry.sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
+from .base import TooLittleToLabel
 from .consistency import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
 from .correspondence import (AMBIGUITY_MARGIN, Group, PairContext, apply, assign, distinct_by_masks,
                              mask_agreement, motion_size, named_mask_ids, pair_score, prefer_small_turns, score_pairs)
@@ -148,7 +149,8 @@ class RuleBasedLabeler:
         (:mod:`.correspondence`) with G groups per state, a coarse registration R_c, S samples,
         V views."""
         if len(start) < 10 or len(end) < 10:
-            raise ValueError("too few valid points to label parts (need at least 10 per state)")
+            raise TooLittleToLabel("too few valid points to label parts (need at least 10 per state)",
+                                   "start" if len(start) < 10 else "end")
         config = self.config
         if posed is None:
             posed = bool(aligned and scene is not None and scene.posed)
@@ -180,7 +182,8 @@ class RuleBasedLabeler:
         start_groups = _merge_across_frames(work_start, start_segments, radius, config, rng, named)
         end_groups = _merge_across_frames(work_end, end_segments, radius, config, rng, named)
         if not start_groups or not end_groups:
-            raise ValueError("no usable segments in one of the states (masks empty after filtering)")
+            raise TooLittleToLabel("no usable segment: too few valid points, or masks empty after filtering",
+                                   "start" if not start_groups else "end")
         margin = 2.0 * radius
         views = (state_views(work_start, scene, margin), state_views(work_end, scene, margin))
         diameter = max(float(np.linalg.norm(np.ptp(work_start.points, axis=0))), 1e-12)
