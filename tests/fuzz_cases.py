@@ -304,8 +304,19 @@ def _scale_units(depth_scale: float) -> Callable[[Path], str]:
 
 def _end_poses_inverted(scene: Path) -> str:
     """The end views' cam_to_world given as world-to-camera (a common mix-up): valid rigid
-    transforms, but the end state lands far from the start state's surfaces."""
+    transforms, but the end state lands far from the start state's surfaces. The end views are
+    renumbered first (files and entries together, a consistent scene) so that no end view
+    repeats the picture of its same-index start view: pictures that repeat would place the end
+    views themselves (align.scene.place_still_end_views)."""
     data = _cameras(scene)
+    for folder in ("rgb", "depth", "mask"):
+        first, second = scene / "end" / folder / "000.png", scene / "end" / folder / "001.png"
+        if first.is_file() and second.is_file():
+            first.rename(first.with_suffix(".tmp"))
+            second.rename(first)
+            first.with_suffix(".tmp").rename(second)
+    for key in ("K", "cam_to_world", "width", "height"):
+        data["end"][0][key], data["end"][1][key] = data["end"][1][key], data["end"][0][key]
     for entry in data["end"]:
         entry["cam_to_world"] = np.linalg.inv(np.array(entry["cam_to_world"])).tolist()
     _write_cameras(scene, data)

@@ -229,3 +229,30 @@ def test_an_unposed_textureless_cabinet_without_masks_keeps_its_twin_placed_view
     assert len(rows) == 2
     for row in rows:
         assert row["type_correct"] and row["axis_deg"] < 2.0, row
+
+
+def test_posed_end_views_that_repeat_their_start_pictures_are_placed_by_them(tmp_path):
+    """A posed camera that did not move while cameras.json says it did (a robot head's drifted
+    pose, one view per state): the end view repeats the start picture, so it is placed by the
+    start pose (align.scene.place_still_end_views) and the joint is the one of the true poses;
+    with poses that agree nothing is placed (no warning)."""
+    import json
+
+    import sparseart
+    from sparseart.datasets.synth import render_synth_scene
+    from sparseart.geometry.transforms import axis_angle_deg
+
+    scene = tmp_path / "cabinet"
+    render_synth_scene(scene, views=1, seed=0, width=160, height=120)
+    truth = sparseart.run(scene)
+    assert not any("repeat the pictures" in w for w in truth.warnings)
+    cameras = json.loads((scene / "cameras.json").read_text())
+    for entry in cameras["end"]:
+        entry["cam_to_world"][0][3] += 0.25
+        entry["cam_to_world"][2][3] -= 0.1
+    (scene / "cameras.json").write_text(json.dumps(cameras))
+    drifted = sparseart.run(scene)
+    assert any("repeat the pictures" in w for w in drifted.warnings), drifted.warnings
+    assert len(drifted.joints) == len(truth.joints) >= 1
+    for (_, a), (_, b) in zip(truth.joints, drifted.joints):
+        assert a.type == b.type and axis_angle_deg(a.axis, b.axis) < 1.0

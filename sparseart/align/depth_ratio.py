@@ -93,7 +93,9 @@ class DepthRatio:
         return entry
 
 
-def _same_camera(a: Frame, b: Frame, depth: float) -> bool:
+def same_camera(a: Frame, b: Frame, depth: float) -> bool:
+    """Do two frames hold one camera: same size and K, poses within ``SAME_POSE_DEG`` and
+    ``SAME_POSE_SHARE`` x ``depth`` (the scene's depth, its units)? False without poses. O(1)."""
     ca, cb = a.camera, b.camera
     if ca is None or cb is None or ca.cam_to_world is None or cb.cam_to_world is None:
         return False
@@ -234,7 +236,7 @@ def match_end_depth(start_frames: list[Frame], end_frames: list[Frame], start_ma
         else:   # the pose gap is judged against the view's median depth
             depth = float(np.median(valid))
             match = next((s for s, start in enumerate(start_frames)
-                          if start.depth is not None and _same_camera(start, end, depth)), None)
+                          if start.depth is not None and same_camera(start, end, depth)), None)
         if match is None or start_frames[match].depth is None:
             continue
         field, numbers = fit_log_ratio(start_frames[match].depth, end.depth)
