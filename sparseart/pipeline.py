@@ -157,7 +157,8 @@ _SUBSTAGE_WHY = {"load_model": "ONNX reconstructor: session created",
                  "reconstruct": "ONNX reconstructor: forward pass(es) and decoding",
                  "register_views": "unposed: views of each state registered to its first view",
                  "align_states": "unposed: end state aligned to the start state by feature matches",
-                 "match_depth": "posed: end depth matched to the start view with the same camera"}
+                 "match_depth": "posed: end views checked against the start views (repeated pictures, a shared "
+                                "surface), end depth matched to the start view with the same camera"}
 
 
 def _label(labeler: PartLabeler, start: LabelledCloud, end: LabelledCloud, scene: Scene | None,
