@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from sparseart.align.depth_ratio import DepthRatio, match_end_depth, same_camera
+from sparseart.align.depth_ratio import SAME_POSE_DEG, SAME_POSE_SHARE, DepthRatio, match_end_depth, same_camera
 from sparseart.align.features import THRESHOLD_FRACTION
 from sparseart.align.graph import SceneRegistration, register_scene
 from sparseart.align.ransac import AlignmentError
@@ -299,17 +299,19 @@ def place_still_end_views(scene: Scene, lifted: LiftedScene,
     at least 30 % of the pixels agreeing in depth and colour) cannot come from cameras posed
     apart beyond the depth-matching tolerance (``SAME_POSE_DEG``, ``SAME_POSE_SHARE`` of the
     depth): the recorded pose is wrong -- a robot's head camera whose pose drifted between the
-    states, or noise in the poses of a camera on a tripod. Views whose pictures differ keep their
-    poses (a state-level drift then stays in them; one view per state, the robot's case, is
-    placed whole). Measured on the real laptop capture with its end pose shifted 30 cm: two lids
+    states, or noise in the poses of a camera on a tripod. Views whose pictures differ (a door
+    fills them) take the still views' correction when two or more still views agree on it
+    (:func:`_common_placement`: the drift is the state's); otherwise they keep their poses and
+    the warning says so. Measured on the real laptop capture with its end pose shifted 30 cm: two lids
     (one flagged unstable, confidence 0.44) in 65 s before, the true lid (0.4 deg, confidence
     0.93) in 10 s when placed; given world-to-camera for the end view: an internal error before,
     the true lid now. O(V H W log(H W)) for the still test of the posed-apart pairs."""
-    apart = []
+    apart, medians = [], {}
     for k in range(min(len(scene.start), len(scene.end))):
         start, end = scene.start[k], scene.end[k]
         depth = start.depth if start.depth is not None else lifted.pointmaps["start"][k].depth
         median = float(np.median(depth[depth > 0])) if depth is not None and np.any(depth > 0) else 0.0
+        medians[k] = median
         if (start.camera is not None and end.camera is not None and start.camera.cam_to_world is not None
                 and end.camera.cam_to_world is not None and median > 0 and not same_camera(start, end, median)):
             apart.append(k)
@@ -319,19 +321,48 @@ def place_still_end_views(scene: Scene, lifted: LiftedScene,
     placed = [k for k in apart if still.get(k) == k]
     if not placed:
         return None
+    placements = {k: scene.start[k].camera.cam_to_world @ np.linalg.inv(scene.end[k].camera.cam_to_world)
+                  for k in placed}
+    scene_point = np.median(valid_points(lifted.pointmaps["start"][placed[0]]), axis=0)
+    common = _common_placement([placements[k] for k in placed], scene_point, SAME_POSE_SHARE * medians[placed[0]])
+    others = [k for k in apart if k not in placements]
+    if common is not None:     # the drift is the state's: the views whose pictures differ carry it too
+        placements.update({k: common for k in others})
     end_frames, end_maps = list(scene.end), list(lifted.pointmaps["end"])
     notes = []
-    for k in placed:
-        start_pose, end_pose = scene.start[k].camera.cam_to_world, scene.end[k].camera.cam_to_world
-        placement = start_pose @ np.linalg.inv(end_pose)
-        end_frames[k] = replace(end_frames[k], camera=replace(end_frames[k].camera, cam_to_world=start_pose.copy()))
+    for k, placement in sorted(placements.items()):
+        end_pose = scene.end[k].camera.cam_to_world
+        end_frames[k] = replace(end_frames[k], camera=replace(end_frames[k].camera, cam_to_world=placement @ end_pose))
         end_maps[k] = transform_pointmap(end_maps[k], placement)
-        notes.append(f"end/rgb/{scene.end[k].rgb_path.name} ({np.linalg.norm(start_pose[:3, 3] - end_pose[:3, 3]):.3g} m, "
-                     f"{np.degrees(rotation_angle(placement[:3, :3])):.2f} deg apart)")
-    warnings.append(f"cameras.json: {', '.join(notes)} repeat the pictures of their start views (the camera did "
-                    f"not move) but their cam_to_world lies apart from the start's: placed by the start poses")
+        if k in placed:
+            notes.append(f"end/rgb/{scene.end[k].rgb_path.name} ({np.linalg.norm(placement[:3, 3]):.3g} m, "
+                         f"{np.degrees(rotation_angle(placement[:3, :3])):.2f} deg)")
+    message = (f"cameras.json: {', '.join(notes)} repeat the pictures of their start views (the camera did not "
+               f"move) but their cam_to_world lies apart from the start's: placed by the start poses")
+    if others:
+        names = ", ".join(f"end/rgb/{scene.end[k].rgb_path.name}" for k in others)
+        message += (f"; {names} moved alike (the still views agree on one correction)" if common is not None
+                    else f"; {names} kept their poses (their pictures differ; they may carry the same error)")
+    warnings.append(message)
     return (replace(scene, end=end_frames),
             replace(lifted, pointmaps={"start": lifted.pointmaps["start"], "end": end_maps}))
+
+
+def _common_placement(placements: list[np.ndarray], point: np.ndarray, tolerance: float) -> np.ndarray | None:
+    """The first of two or more (4, 4) placements that agree -- turns within ``SAME_POSE_DEG`` of
+    each other, and moving ``point`` (3,), a point of the scene, to within ``tolerance`` (scene
+    units) of each other -- or None: one still view cannot tell a drift of the state's from its
+    own. O(P)."""
+    if len(placements) < 2:
+        return None
+    first = placements[0]
+    where = first[:3, :3] @ point + first[:3, 3]
+    for other in placements[1:]:
+        if np.degrees(rotation_angle(other[:3, :3] @ first[:3, :3].T)) > SAME_POSE_DEG:
+            return None
+        if np.linalg.norm(other[:3, :3] @ point + other[:3, 3] - where) > tolerance:
+            return None
+    return first
 
 
 def check_shared_surface(scene: Scene, pointmaps: dict[str, list[Pointmap]]) -> float:
