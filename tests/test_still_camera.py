@@ -231,31 +231,42 @@ def test_an_unposed_textureless_cabinet_without_masks_keeps_its_twin_placed_view
         assert row["type_correct"] and row["axis_deg"] < 2.0, row
 
 
-def test_posed_end_views_that_repeat_their_start_pictures_are_placed_by_them(tmp_path):
-    """A posed camera that did not move while cameras.json says it did (a robot head's drifted
-    pose, one view per state): the end view repeats the start picture, so it is placed by the
-    start pose (align.scene.place_still_end_views) and the joint is the one of the true poses;
-    with poses that agree nothing is placed (no warning)."""
+
+def _run_true_and_drifted(tmp_path, views: int):
+    """The synthetic cabinet with ``views`` posed views per state, run with its true poses and
+    again with every end pose drifted by (0.25, 0, -0.1) m: (truth, drifted) results."""
     import json
 
     import sparseart
     from sparseart.datasets.synth import render_synth_scene
-    from sparseart.geometry.transforms import axis_angle_deg
 
     scene = tmp_path / "cabinet"
-    render_synth_scene(scene, views=1, seed=0, width=160, height=120)
+    render_synth_scene(scene, views=views, seed=0, width=160, height=120)
     truth = sparseart.run(scene)
-    assert not any("repeat the pictures" in w for w in truth.warnings)
     cameras = json.loads((scene / "cameras.json").read_text())
     for entry in cameras["end"]:
         entry["cam_to_world"][0][3] += 0.25
         entry["cam_to_world"][2][3] -= 0.1
     (scene / "cameras.json").write_text(json.dumps(cameras))
-    drifted = sparseart.run(scene)
-    assert any("repeat the pictures" in w for w in drifted.warnings), drifted.warnings
+    return truth, sparseart.run(scene)
+
+
+def _same_joints(truth, drifted) -> None:
+    from sparseart.geometry.transforms import axis_angle_deg
+
     assert len(drifted.joints) == len(truth.joints) >= 1
     for (_, a), (_, b) in zip(truth.joints, drifted.joints):
         assert a.type == b.type and axis_angle_deg(a.axis, b.axis) < 1.0
+
+def test_posed_end_views_that_repeat_their_start_pictures_are_placed_by_them(tmp_path):
+    """A posed camera that did not move while cameras.json says it did (a robot head's drifted
+    pose, one view per state): the end view repeats the start picture, so it is placed by the
+    start pose (align.scene.place_still_end_views) and the joint is the one of the true poses;
+    with poses that agree nothing is placed (no warning)."""
+    truth, drifted = _run_true_and_drifted(tmp_path, views=1)
+    assert not any("repeat the pictures" in w for w in truth.warnings)
+    assert any("repeat the pictures" in w for w in drifted.warnings), drifted.warnings
+    _same_joints(truth, drifted)
 
 
 def test_a_drift_two_still_views_agree_on_moves_the_views_a_door_fills_too(tmp_path):
@@ -264,22 +275,7 @@ def test_a_drift_two_still_views_agree_on_moves_the_views_a_door_fills_too(tmp_p
     one correction, so the drift is the state's and every end view is placed: the joints are the
     true poses' (the drawer's slide came out 68 deg off, confidence 0.92, when the two other
     views kept the drifted poses)."""
-    import json
-
-    import sparseart
-    from sparseart.datasets.synth import render_synth_scene
-    from sparseart.geometry.transforms import axis_angle_deg
-
-    scene = tmp_path / "cabinet"
-    render_synth_scene(scene, views=4, seed=0, width=160, height=120)
-    truth = sparseart.run(scene)
-    cameras = json.loads((scene / "cameras.json").read_text())
-    for entry in cameras["end"]:
-        entry["cam_to_world"][0][3] += 0.25
-        entry["cam_to_world"][2][3] -= 0.1
-    (scene / "cameras.json").write_text(json.dumps(cameras))
-    drifted = sparseart.run(scene)
+    truth, drifted = _run_true_and_drifted(tmp_path, views=4)
     assert any("moved alike" in w for w in drifted.warnings), drifted.warnings
-    assert len(drifted.joints) == len(truth.joints) == 2
-    for (_, a), (_, b) in zip(truth.joints, drifted.joints):
-        assert a.type == b.type and axis_angle_deg(a.axis, b.axis) < 1.0
+    assert len(truth.joints) == 2
+    _same_joints(truth, drifted)
