@@ -173,7 +173,7 @@ def _label(labeler: PartLabeler, start: LabelledCloud, end: LabelledCloud, scene
         if scene is None:
             raise SceneError(f"{error.state} cloud ({len(cloud)} points): {error}") from None
         frames = scene.frames(error.state)
-        depths = ", ".join(f"{error.state}/depth/{Path(f.depth_path).name}" if f.depth_path is not None
+        depths = ", ".join(f"{error.state}/depth/{f.depth_path.name}" if f.depth_path is not None
                            else f"{error.state}/rgb/{f.rgb_path.name}" for f in frames)
         raise SceneError(f"{scene.root / error.state} ({depths}): {len(cloud)} valid points in the "
                          f"{error.state} state against {len(start) + len(end) - len(cloud)} in the other: {error}; "

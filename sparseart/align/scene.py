@@ -37,7 +37,7 @@ from sparseart.align.features import THRESHOLD_FRACTION
 from sparseart.align.graph import SceneRegistration, register_scene
 from sparseart.align.ransac import AlignmentError
 from sparseart.align.states import align_states
-from sparseart.align.still import place_through_twins, still_camera, still_pairs
+from sparseart.align.still import place_through_twins, still_camera, still_pairs, view_depth
 from sparseart.geometry.clouds import scene_size, transform_pointmap, valid_points
 from sparseart.geometry.icp import icp_polish
 from sparseart.geometry.transforms import rotation_angle
@@ -309,7 +309,7 @@ def place_still_end_views(scene: Scene, lifted: LiftedScene,
     apart, medians = [], {}
     for k in range(min(len(scene.start), len(scene.end))):
         start, end = scene.start[k], scene.end[k]
-        depth = start.depth if start.depth is not None else lifted.pointmaps["start"][k].depth
+        depth = view_depth(start, lifted.pointmaps["start"][k])
         median = float(np.median(depth[depth > 0])) if depth is not None and np.any(depth > 0) else 0.0
         medians[k] = median
         if (start.camera is not None and end.camera is not None and start.camera.cam_to_world is not None

@@ -164,7 +164,7 @@ def pixel_agreement(start: Frame, end: Frame, start_map: Pointmap, end_map: Poin
     (:func:`still_tiles`): large flat faces agree in depth and colour from a camera moved 10 deg
     as well (a door's front: 47 % of the pixels). ``shift``: the images' :func:`image_shift` when
     the caller has it (computed here otherwise). O(H W log(H W))."""
-    depths = [_depth(f, m) for f, m in ((start, start_map), (end, end_map))]
+    depths = [view_depth(f, m) for f, m in ((start, start_map), (end, end_map))]
     if any(d is None for d in depths) or depths[0].shape != depths[1].shape or start.rgb.shape != end.rgb.shape:
         return None
     start_depth, end_depth = depths
@@ -233,7 +233,7 @@ def still_tiles(start_rgb: np.ndarray, end_rgb: np.ndarray) -> bool:
     return still >= STILL_MIN_TILES and still >= STILL_MIN_TILE_SHARE * textured
 
 
-def _depth(frame: Frame, pointmap: Pointmap) -> np.ndarray | None:
+def view_depth(frame: Frame, pointmap: Pointmap) -> np.ndarray | None:
     """(H, W) float64 depth of a view: the frame's own, else the pointmap's."""
     depth = frame.depth if frame.depth is not None else pointmap.depth
     return None if depth is None else np.asarray(depth, dtype=np.float64)
