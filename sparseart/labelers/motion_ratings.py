@@ -160,6 +160,7 @@ class Ratings:
         self.motions: list[np.ndarray] = []
         self.rows: list[np.ndarray] = []      # (N_s + N_e,) ratings per motion
         self.off_colour: list[np.ndarray] = []  # (N_s + N_e,) bool: hits onto another colour
+        self.blind: list[np.ndarray] = []       # (N_s + N_e,) bool: hits onto unseen points (blind hits)
         self.physics: list[float] = []
         self.slides: list[float] = []
         self.detached: list[bool] = []       # a turn no hinge on the static body makes (:func:`detached`)
@@ -167,7 +168,7 @@ class Ratings:
 
     def _rate(self, points: np.ndarray, tree: cKDTree, views: StateViews, own_unseen: np.ndarray,
               target_unseen: np.ndarray, own_chroma: np.ndarray,
-              target_chroma: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+              target_chroma: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         distance, index = tree.query(points, k=1, distance_upper_bound=self.radius)
         hits = distance < self.radius
         # Unseen points (hidden in the other state, no vote in the split) earn nothing from each
@@ -177,25 +178,30 @@ class Ratings:
         # in one state, carried onto the wall patch it hides, lands on the wall's colour).
         off = np.zeros(len(points), dtype=bool)
         off[hits] = off_colour(own_chroma[hits], target_chroma[index[hits]])
+        blind = np.zeros(len(points), dtype=bool)
+        blind[hits] = target_unseen[index[hits]]
         rating = hits.astype(np.float64)
         if views:
             labels = views.classify(points[~hits])
             rating[~hits] = np.where(labels == HIDDEN, HIDDEN_CREDIT, np.where(labels == VIOLATION, -1.0, 0.0))
         # An unseen point carried to where the other state cannot see either: no evidence at all.
         rating[own_unseen & (rating == HIDDEN_CREDIT)] = 0.0
-        return rating, off
+        return rating, off, blind
 
     def rate(self, transform: np.ndarray) -> np.ndarray:
         return self.rate_with_colour(transform)[0]
 
-    def rate_with_colour(self, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def rate_with_colour(self, transform: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(ratings, off-colour hits, blind hits) of the moved points of both states under the
+        motion, each (N_s + N_e,): a blind hit lands on a point the other state's views never saw
+        (unseen in the split: a surface the motion revealed)."""
         forward = self._rate(apply(transform, self.start.points[self.start_moved]), self.end_tree,
                              self.context.end_views, self.start_unseen, self.end_unseen, self.start_chroma,
                              self.end_chroma)
         backward = self._rate(apply(np.linalg.inv(transform), self.end.points[self.end_moved]), self.start_tree,
                               self.context.start_views, self.end_unseen, self.start_unseen, self.end_chroma,
                               self.start_chroma)
-        return np.concatenate([forward[0], backward[0]]), np.concatenate([forward[1], backward[1]])
+        return tuple(np.concatenate([f, b]) for f, b in zip(forward, backward))
 
     def coloured_row(self, k: int) -> np.ndarray:
         """Motion k's ratings with its off-colour hits as 0: what a point's membership of the
@@ -237,10 +243,11 @@ class Ratings:
             if not self.known(transform, also=fresh):
                 fresh.append(transform)
         self.static_tree()      # built once here, not raced for by the threads
-        for transform, (row, off, physics, slide, loose) in zip(fresh, in_parallel(self._measure, fresh)):
+        for transform, (row, off, blind, physics, slide, loose) in zip(fresh, in_parallel(self._measure, fresh)):
             self.motions.append(transform)
             self.rows.append(row)
             self.off_colour.append(off)
+            self.blind.append(blind)
             self.physics.append(physics)
             self.slides.append(slide)
             self.detached.append(loose)
@@ -252,7 +259,7 @@ class Ratings:
 
     def _measure(self, transform: np.ndarray) -> tuple:
         """(ratings row, off-colour hits, physics, slide sine, detached) of one motion."""
-        row, off = self.rate_with_colour(transform)
+        row, off, blind = self.rate_with_colour(transform)
         n_start = len(self.start_moved)
         hit_s, hit_e = row[:n_start] >= 1.0, row[n_start:] >= 1.0
         own_s, own_e = self.start_moved[hit_s], self.end_moved[hit_e]
@@ -264,7 +271,7 @@ class Ratings:
                                    int(np.count_nonzero(hit_e & ~self.end_unseen)))
         loose = detached(transform, np.concatenate([self.start.points[own_s], apply(
             np.linalg.inv(transform), self.end.points[own_e])]), self.static_tree(), seen_both=seen_both)
-        return row, off, physics, slide, loose
+        return row, off, blind, physics, slide, loose
 
     def static_tree(self) -> cKDTree | None:
         """KD-tree of at most ``STATIC_SAMPLE`` of the start points that did not move (None when
