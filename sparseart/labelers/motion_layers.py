@@ -34,9 +34,8 @@ state's unexplained moved points and its motion joins when it hits at least a pa
 points in both states and a joint anchored on the static body could make it (few blocked steps,
 a slide out of its slot). Each point then follows the motion rating it best (a hit that lands on
 another colour counts as none here: a hand or sleeve in one state lands on the wall or cabinet
-patch it hides, by position a hit; among tied hits, one landing on a point the other state saw
-wins over one landing on an unseen point, a revealed surface); ties and hidden-only points go to
-the motion whose hits lie nearest, and a layer's piece (its points of one state linked at the inlier radius) without a
+patch it hides, by position a hit); ties and hidden-only points go to the motion whose hits lie
+nearest, and a layer's piece (its points of one state linked at the inlier radius) without a
 single hit stays unassigned: landing hidden is
 no evidence of being attached (a hand on a door in one state, carried back by the door's turn,
 lands behind the cabinet as the door's own sides do). A layer whose hits all land on unseen
@@ -322,7 +321,6 @@ def _merge_agreeing(ratings: Ratings, layers: list[MotionLayer]) -> list[MotionL
     its motion; its unseen points stay unassigned. O(L^2 P log N)."""
     layers = sorted(layers, key=lambda layer: -(len(layer.start) + len(layer.end)))
     radius = ratings.context.radius
-    sighted: dict[int, float] = {}
     merged = True
     while merged:
         merged = False
@@ -331,7 +329,7 @@ def _merge_agreeing(ratings: Ratings, layers: list[MotionLayer]) -> list[MotionL
                 big, small = layers[a], layers[b]
                 if not _touching(ratings, big, small, radius):
                     continue
-                blind = _blind_piece(ratings, big, small, sighted)
+                blind = _blind_piece(ratings, big, small)
                 if blind is not None:
                     keep, piece = (big, small) if blind is small else (small, big)
                     at_s = np.searchsorted(ratings.start_moved, piece.start)
@@ -361,22 +359,18 @@ BLIND_SHARE = 0.05         # a layer whose hits land on seen points less than th
 SAME_HINGE_DEG = 15.0      # ... and joins a touching sighted layer that turns about an axis within this
 
 
-def _sighted_share(ratings: Ratings, layer: MotionLayer, cache: dict[int, float]) -> float:
+def _sighted_share(ratings: Ratings, layer: MotionLayer) -> float:
     """Share of the layer's hits (its seen points that its own motion carries onto the other
     state's moved points in their colour; unseen points have no vote) that land on points the
-    other state's views saw (not unseen); 1 without hits. Cached per layer (``cache``, keyed by
-    the layer's id). O(P) for P layer points."""
-    key = id(layer)
-    if key not in cache:
-        k = next(k for k, motion in enumerate(ratings.motions) if motion is layer.transform)
-        at = np.concatenate([np.searchsorted(ratings.start_moved, layer.start),
-                             len(ratings.start_moved) + np.searchsorted(ratings.end_moved, layer.end)])
-        hits = (ratings.coloured_row(k)[at] >= 1.0) & ~ratings.unseen[at]
-        cache[key] = float(np.mean(~ratings.blind[k][at][hits])) if hits.any() else 1.0
-    return cache[key]
+    other state's views saw (not unseen); 1 without hits. O(N) for N moved points."""
+    k = next(k for k, motion in enumerate(ratings.motions) if motion is layer.transform)
+    at = np.concatenate([np.searchsorted(ratings.start_moved, layer.start),
+                         len(ratings.start_moved) + np.searchsorted(ratings.end_moved, layer.end)])
+    hits = (ratings.coloured_row(k)[at] >= 1.0) & ~ratings.unseen[at]
+    return float(np.mean(~ratings.blind[k][at][hits])) if hits.any() else 1.0
 
 
-def _blind_piece(ratings: Ratings, a: MotionLayer, b: MotionLayer, cache: dict[int, float]) -> MotionLayer | None:
+def _blind_piece(ratings: Ratings, a: MotionLayer, b: MotionLayer) -> MotionLayer | None:
     """The one of two touching layers (both turning, about axes within ``SAME_HINGE_DEG``) that
     is a blind piece of the other's part, or None.
 
@@ -389,14 +383,14 @@ def _blind_piece(ratings: Ratings, a: MotionLayer, b: MotionLayer, cache: dict[i
     beside the true 96 deg one, or as the only lid, in 5 of 12 turns of the world frame about
     the vertical (the voxel grid decides which motion wins the tied points). A blind layer
     alone (a lid raised towards the camera, which hides its own closed pose) is left as it is.
-    O(P) per layer (cached in ``cache``)."""
+    O(N) for N moved points."""
     angles = [rotation_angle(layer.transform[:3, :3]) for layer in (a, b)]
     if min(angles) < np.radians(5.0):
         return None
     axes = [Rotation.from_matrix(layer.transform[:3, :3]).as_rotvec() / angle for layer, angle in zip((a, b), angles)]
     if np.degrees(np.arccos(min(1.0, abs(float(axes[0] @ axes[1]))))) > SAME_HINGE_DEG:
         return None
-    blind = [_sighted_share(ratings, layer, cache) < BLIND_SHARE for layer in (a, b)]
+    blind = [_sighted_share(ratings, layer) < BLIND_SHARE for layer in (a, b)]
     if blind[0] == blind[1]:
         return None
     return a if blind[0] else b
@@ -461,8 +455,7 @@ def _touching(ratings: Ratings, a: MotionLayer, b: MotionLayer, radius: float) -
 
 def _assign_points(ratings: Ratings, chosen: list[int]) -> list[MotionLayer]:
     """Every moved point follows the motion rating it best (hits first; off-colour hits count as
-    none, :meth:`~.motion_ratings.Ratings.coloured_row`; among tied hits, those landing on a point
-    the other state saw before those landing on an unseen one); ties and hidden-only
+    none, :meth:`~.motion_ratings.Ratings.coloured_row`); ties and hidden-only
     points go to the motion whose hits lie nearest. Points rated <= 0 by every motion, and the
     pieces of a layer without a hit (:func:`_drop_pieces_without_hits`), stay unassigned."""
     if not chosen:
@@ -474,11 +467,6 @@ def _assign_points(ratings: Ratings, chosen: list[int]) -> list[MotionLayer]:
     state = np.concatenate([np.zeros(n_start, dtype=bool), np.ones(len(ratings.end_moved), dtype=bool)])
     owner = np.full(len(best), -1, dtype=np.int64)
     top = table >= best[None, :] - 1e-12
-    # a tie of hits goes first to the motions whose hit lands on a point the other state saw: a
-    # landing on an unseen point (a revealed surface) is a hit that staying put explains as well
-    sighted = top & (best >= 1.0)[None, :] & ~np.stack([ratings.blind[k] for k in chosen])
-    prefer = sighted.any(axis=0)
-    top[:, prefer] = sighted[:, prefer]
     unique_hit = (best >= 1.0) & (top.sum(axis=0) == 1)
     owner[unique_hit] = table[:, unique_hit].argmax(axis=0)
     pending = np.flatnonzero((best > 0) & (owner < 0))
