@@ -792,3 +792,28 @@ def test_a_run_without_masks_hands_no_mask_to_any_stage(tmp_path):
     run(scene, labeler=spy, use_masks=False)
     assert spy.masks and all(mask is None for mask in spy.masks)
     assert all(f.mask is not None for f in scene.all_frames)     # the caller's scene is left as it was
+
+
+def test_without_masks_only_a_swap_of_parts_is_an_ambiguous_pairing():
+    """Without masks a runner-up pairing that gives a part an end piece nothing else took (the real
+    laptop's lid paired with the arm that closed it) does not lower the part's confidence: the
+    motion layers weigh that motion over every moved point. A runner-up that swaps two parts does,
+    with masks or without."""
+    from types import SimpleNamespace
+
+    from sparseart.labelers.rules import _pairing_diagnostics
+
+    candidates = {(i, j): SimpleNamespace(i=i, j=j, score=0.5, physics=0.0, slide=0.0, mask=0.0, transform=np.eye(4))
+                  for i in range(3) for j in range(3)}
+    other_piece = SimpleNamespace(cost=-1.18, pairs=[(0, 0), (1, 1)], runner_up=[(0, 0), (1, 2)],
+                                  runner_up_cost=-1.15, margin=0.03)
+    swap = SimpleNamespace(cost=-1.5, pairs=[(0, 0), (1, 1), (2, 2)], runner_up=[(0, 0), (1, 2), (2, 1)],
+                           runner_up_cost=-1.47, margin=0.03)
+    parts = {(0, 0): 0, (1, 1): 1, (2, 2): 2}
+    for assignment, swaps_only, lowered in ((other_piece, True, False), (other_piece, False, True),
+                                            (swap, True, True), (swap, False, True)):
+        warnings: list[str] = []
+        result = _pairing_diagnostics(assignment, candidates, parts, warnings, 0.01, swaps_only=swaps_only)
+        assert (result["confidence"][1] < 1.0) == lowered, (assignment.pairs, swaps_only, result["confidence"])
+        assert any("ambiguous pairing" in w for w in warnings) == lowered
+        assert result["pairing"]["runner_up"]          # the runner-up is kept in the diagnostics either way
