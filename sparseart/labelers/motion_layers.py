@@ -56,7 +56,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ..geometry.clouds import radius_components, slab_axes
-from ..geometry.transforms import rotation_angle
+from ..geometry.transforms import axis_angle_deg, rotation_angle
 from .correspondence import PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, motion_size, register_sets, slide_direction
 from .motion_candidates import PLANE_HINGE_SAME_TURN_DEG, frame_slides, plane_hinges, slab_mirrors, twin_slides
 from .motion_ratings import Ratings
@@ -384,11 +384,10 @@ def _blind_piece(ratings: Ratings, a: MotionLayer, b: MotionLayer) -> MotionLaye
     the vertical (the voxel grid decides which motion wins the tied points). A blind layer
     alone (a lid raised towards the camera, which hides its own closed pose) is left as it is.
     O(N) for N moved points."""
-    angles = [rotation_angle(layer.transform[:3, :3]) for layer in (a, b)]
-    if min(angles) < np.radians(5.0):
+    turns = [Rotation.from_matrix(layer.transform[:3, :3]).as_rotvec() for layer in (a, b)]
+    if min(np.linalg.norm(turn) for turn in turns) < np.radians(5.0):
         return None
-    axes = [Rotation.from_matrix(layer.transform[:3, :3]).as_rotvec() / angle for layer, angle in zip((a, b), angles)]
-    if np.degrees(np.arccos(min(1.0, abs(float(axes[0] @ axes[1]))))) > SAME_HINGE_DEG:
+    if axis_angle_deg(*turns) > SAME_HINGE_DEG:
         return None
     blind = [_sighted_share(ratings, layer) < BLIND_SHARE for layer in (a, b)]
     if blind[0] == blind[1]:

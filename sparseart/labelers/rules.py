@@ -827,11 +827,10 @@ def _pairing_diagnostics(assignment, candidates: dict, part_of_pair: dict[tuple[
         result["pairing"]["runner_up_cost"] = round(assignment.runner_up_cost, 6)
         result["pairing"]["margin"] = round(margin, 6)
         changed = [p for p in assignment.pairs if p not in assignment.runner_up]
-        affected = sorted({part_of_pair[p] for p in changed if part_of_pair.get(p, 0) > 0})
-        if swaps_only:
-            taken = {p[1]: p[0] for p in assignment.pairs}
-            swapped = {q[0] for q in assignment.runner_up if q not in assignment.pairs and taken.get(q[1], q[0]) != q[0]}
-            affected = sorted({part_of_pair[p] for p in changed if part_of_pair.get(p, 0) > 0 and p[0] in swapped})
+        taken = {p[1]: p[0] for p in assignment.pairs}     # end group -> its start group in the best pairing
+        swapped = {q[0] for q in assignment.runner_up if q not in assignment.pairs and taken.get(q[1], q[0]) != q[0]}
+        affected = sorted({part_of_pair[p] for p in changed
+                           if part_of_pair.get(p, 0) > 0 and (not swaps_only or p[0] in swapped)})
         for p in changed:
             part = part_of_pair.get(p, 0)
             if part <= 0:
