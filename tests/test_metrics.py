@@ -300,3 +300,20 @@ def test_summarise_sigma_coverage_counts_successful_joints_with_a_stated_sigma()
     out = summarise(rows)
     assert out["sigma_count"] == 3 and out["sigma_coverage"] == pytest.approx(2 / 3)   # failures and no-sigma left out
     assert summarise(rows[3:])["sigma_coverage"] is None
+
+
+def test_summarise_position_and_state_coverage_read_their_own_sigma():
+    """The hinge line's position and the angle or slide have their own stated sigma; each is
+    judged over the successful joints of the right type that state one."""
+    def row(position, origin_sigma, state, state_sigma, axis=1.0, right_type=True):
+        return {"axis_deg": axis, "axis_sigma_deg": 2.0, "type_correct": right_type, "gt_type": "revolute",
+                "position": position, "origin_sigma": origin_sigma, "state": state, "state_sigma": state_sigma}
+
+    rows = [row(0.01, 0.02, 1.0, 2.0), row(0.03, 0.02, 3.0, 2.0), row(0.01, 0.02, 3.0, 2.0),
+            row(0.01, None, 1.0, None),                         # no sigma stated: left out
+            row(0.01, 0.02, 1.0, 2.0, axis=40.0),               # a failure: left out
+            row(0.01, 0.02, 1.0, 2.0, right_type=False)]        # the wrong type: left out
+    out = summarise(rows)
+    assert out["position_sigma_coverage"] == pytest.approx(2 / 3)
+    assert out["state_sigma_coverage"] == pytest.approx(1 / 3)
+    assert summarise(rows[3:])["position_sigma_coverage"] is None

@@ -81,6 +81,23 @@ def _subsample(points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return points[random_subset(len(points), CHAMFER_SAMPLE, rng)]
 
 
+def _finite(value: Any) -> float | None:
+    return None if value is None or not np.isfinite(value) else float(value)
+
+
+def _stated_sigmas(joint: Any) -> dict[str, float | None]:
+    """The joint's stated 1-sigma in the units of the errors beside it: ``axis_sigma_deg``,
+    ``origin_sigma`` (the hinge line's position, scene units; revolute only: a slide's origin is
+    only where its part starts) and ``state_sigma`` (degrees for a revolute angle, scene units for
+    a slide). None where the joint states none."""
+    uncertainty = joint.uncertainty or {}
+    revolute = joint.type == "revolute"
+    state = uncertainty.get("angle") if revolute else uncertainty.get("distance")
+    return {"axis_sigma_deg": _finite(uncertainty.get("axis_deg")),
+            "origin_sigma": _finite(uncertainty.get("origin")) if revolute else None,
+            "state_sigma": None if _finite(state) is None else float(np.degrees(state) if revolute else state)}
+
+
 def evaluate(result: Articulation, scene: Scene, gt: dict[str, Any]) -> list[dict[str, Any]]:
     """Per ground-truth joint: the metrics.joint_errors dict plus "name" and "part" (matched
     predicted part id or None). Units: degrees for angles, scene units for positions."""
@@ -108,10 +125,8 @@ def evaluate(result: Articulation, scene: Scene, gt: dict[str, Any]) -> list[dic
         pred = {"type": joint.type, "axis": to_world[:3, :3] @ joint.axis,
                 "origin": to_world[:3, :3] @ joint.origin + to_world[:3, 3],
                 "angle": joint.angle, "distance": joint.distance}
-        sigma = (joint.uncertainty or {}).get("axis_deg")
         rows[k] = {**metrics.joint_errors(pred, gt_joints[k]), "part": part.spec.id,
-                   "axis_sigma_deg": None if sigma is None or not np.isfinite(sigma) else float(sigma),
-                   "confidence": float(joint.confidence)}
+                   **_stated_sigmas(joint), "confidence": float(joint.confidence)}
     for k in unmatched:
         rows[k] = {**metrics.unmatched_joint_errors(gt_joints[k], position_max=scale), "part": None}
     for row, g in zip(rows, gt_joints):

@@ -408,6 +408,11 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     * ``sigma_coverage``: over the successful joints with a stated axis sigma (``axis_sigma_deg``),
       the fraction whose axis error is within it (honest: ~63 % for the axis angle, the norm of
       two tangent components); ``sigma_count``: how many such joints.
+    * ``position_sigma_coverage``: the same for the hinge line's position (``position`` against
+      ``origin_sigma``, successful revolute joints of the right type; honest ~63 %: the distance
+      between two lines has two components too); ``state_sigma_coverage``: for the angle or slide
+      (``state`` against ``state_sigma``, successful joints of the right type; honest ~68 %, one
+      component).
 
     Statistics over an empty set are ``None`` (never NaN). The gt type is read from
     ``gt_type``; dicts without it are taken as revolute when ``position`` is not None.
@@ -440,6 +445,12 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
                if e.get("axis_sigma_deg") is not None and float(e["axis_deg"]) < SUCCESS_AXIS_DEG]
     out["sigma_count"] = len(covered)
     out["sigma_coverage"] = sum(covered) / len(covered) if covered else None
+    for key, error, sigma in (("position_sigma_coverage", "position", "origin_sigma"),
+                              ("state_sigma_coverage", "state", "state_sigma")):
+        within = [float(e[error]) <= float(e[sigma]) for e in errors
+                  if e.get(sigma) is not None and e.get(error) is not None and e.get("type_correct")
+                  and float(e["axis_deg"]) < SUCCESS_AXIS_DEG]
+        out[key] = sum(within) / len(within) if within else None
     for key, vals in (("axis_deg", axis), ("position", pos),
                       ("state_revolute_deg", st_rev), ("state_prismatic", st_pri)):
         mean, median = _stats(vals)
