@@ -30,18 +30,42 @@ START = [0] * 10 + [1] * 10 + [2] * 10
 END = [0] * 10 + [1] * 10 + [2] * 10
 
 
-def test_stable_joint_keeps_its_numbers_and_records_the_gap():
+def test_stable_joint_keeps_its_confidence_and_its_sigma_reaches_the_labelling_spread():
+    """A counterpart 3 deg away (below UNSTABLE_DEG) is no warning, but the gap is a sample of the
+    labelling noise: each stated sigma is raised to at least gap / sqrt(2). A sigma already above
+    it, or a counterpart that agrees exactly, leaves the sigma as it was."""
     parts = _run({1: _joint("revolute", [0, 0, 1]), 2: _joint("prismatic", [1, 0, 0])})
-    # the second run: same points, axes 3 deg off, part ids swapped (ids are arbitrary)
-    turned = [np.sin(np.radians(3)), 0, np.cos(np.radians(3))]
-    other = _run({7: _joint("revolute", turned), 8: _joint("prismatic", [1, 0.02, 0])})
+    parts[0].joint.uncertainty.update(origin=0.01, angle=0.05)
+    parts[1].joint.uncertainty.update(origin=0.01, distance=0.005)
+    # the second run: same points, axes 3 deg off, part ids swapped (ids are arbitrary); its hinge
+    # 0.03 from this axis line (and 0.5 along it, which is the same line), its slide 0.21 and
+    # read along an axis given the other way round
+    turned = _joint("revolute", [np.sin(np.radians(3)), 0, np.cos(np.radians(3))])
+    turned.origin = np.array([0.03, 0.0, 0.5])
+    turned.angle = 0.54
+    slid = _joint("prismatic", [-1, -0.02, 0])
+    slid.distance = -0.21
+    other = _run({7: turned, 8: slid})
     other_labels = _labels([0] * 10 + [7] * 10 + [8] * 10, [0] * 10 + [7] * 10 + [8] * 10)
     warnings: list[str] = []
     apply_second_opinion(parts, _labels(START, END), other, other_labels, warnings)
     assert warnings == []
-    assert parts[0].joint.confidence == 0.6 and parts[0].joint.uncertainty["axis_deg"] == 1.0
-    assert parts[0].joint.diagnostics["second_opinion"]["axis_deg"] == pytest.approx(3.0, abs=1e-6)
-    assert parts[1].joint.diagnostics["second_opinion"]["type"] == "prismatic"
+    hinge, slide = parts[0].joint, parts[1].joint
+    assert hinge.confidence == 0.6 and slide.confidence == 0.6
+    assert hinge.diagnostics["second_opinion"]["axis_deg"] == pytest.approx(3.0, abs=1e-6)
+    assert slide.diagnostics["second_opinion"]["type"] == "prismatic"
+    root2 = np.sqrt(2.0)
+    assert hinge.uncertainty["axis_deg"] == pytest.approx(3.0 / root2)
+    assert hinge.uncertainty["origin"] == pytest.approx(0.03 / root2)
+    assert hinge.uncertainty["angle"] == 0.05        # above the angles' spread 0.04 / sqrt(2)
+    assert hinge.diagnostics["labelling_spread"]["angle"] == pytest.approx(0.04 / root2)
+    assert slide.uncertainty["axis_deg"] == 1.0      # above the axes' spread 1.15 / sqrt(2) deg
+    assert slide.uncertainty["distance"] == pytest.approx(0.01 / root2)
+    assert slide.uncertainty["origin"] == 0.01     # a slide's origin is only where its part starts
+    same = _run({1: _joint("revolute", [0, 0, 1])})
+    apply_second_opinion(same, _labels(START, END), _run({1: _joint("revolute", [0, 0, 1])}),
+                         _labels(START, END), warnings)
+    assert same[0].joint.uncertainty["axis_deg"] == 1.0 and warnings == []
 
 
 def test_turned_missing_or_retyped_counterparts_are_marked():

@@ -252,7 +252,7 @@ def summary_table(summary: list[dict[str, Any]]) -> str:
     """One line per setting and method: type accuracy, success, axis mean/median, position median,
     state medians, median seconds, the share of successful joints whose axis error is within the
     stated 1-sigma (``1σ cov``; ~63 % is honest for the axis angle), the same for the hinge line's
-    position and the angle or slide (``pos 1σ``, ~63 %; ``st 1σ``, ~68 %) and the movable parts
+    position and the angle or slide (``pos 1σ``, at least ~63 %; ``st 1σ``, ~68 %) and the movable parts
     reported that match no true joint (``extra``, :func:`extra_parts`)."""
     header = (f"{'setting':17s} {'method':9s} {'n':>3s} {'type':>5s} {'succ':>5s} {'axis mean':>9s} "
               f"{'axis med':>8s} {'pos med':>8s} {'rev° med':>8s} {'pris med':>8s} {'sec med':>7s} {'1σ cov':>6s} "

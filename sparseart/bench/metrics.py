@@ -409,8 +409,8 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
       the fraction whose axis error is within it (honest: ~63 % for the axis angle, the norm of
       two tangent components); ``sigma_count``: how many such joints.
     * ``position_sigma_coverage``: the same for the hinge line's position (``position`` against
-      ``origin_sigma``, successful revolute joints of the right type; honest ~63 %: the distance
-      between two lines has two components too); ``state_sigma_coverage``: for the angle or slide
+      ``origin_sigma``, successful revolute joints of the right type; honest: at least ~63 %, as
+      the lines' closest distance is at most the hinge's 2-D offset across the axis); ``state_sigma_coverage``: for the angle or slide
       (``state`` against ``state_sigma``, successful joints of the right type; honest ~68 %, one
       component).
 
