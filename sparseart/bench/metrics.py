@@ -410,9 +410,9 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
       two tangent components); ``sigma_count``: how many such joints.
     * ``position_sigma_coverage``: the same for the hinge line's position (``position`` against
       ``origin_sigma``, successful revolute joints of the right type; honest: at least ~63 %, as
-      the lines' closest distance is at most the hinge's 2-D offset across the axis); ``state_sigma_coverage``: for the angle or slide
-      (``state`` against ``state_sigma``, successful joints of the right type; honest ~68 %, one
-      component).
+      the lines' closest distance is at most the hinge's 2-D offset across the axis).
+    * ``state_sigma_coverage``: the same for the angle or slide (``state`` against
+      ``state_sigma``, successful joints of the right type; honest ~68 %, one component).
 
     Statistics over an empty set are ``None`` (never NaN). The gt type is read from
     ``gt_type``; dicts without it are taken as revolute when ``position`` is not None.

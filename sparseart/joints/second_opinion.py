@@ -52,9 +52,10 @@ def _overlap(a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray])
 def apply_second_opinion(parts: list[PartResult], labels: PartLabels, other_parts: list[PartResult],
                          other_labels: PartLabels, warnings: list[str]) -> None:
     """Compare every fitted joint of ``parts`` with its counterpart in ``other_parts`` (the second
-    run) and mark the unstable ones (module doc). Records ``diagnostics["second_opinion"]`` =
-    {"axis_deg": gap or None, "type": counterpart type or None, "overlap": Jaccard} on every
-    joint; appends ``part N: ...`` warnings. In place."""
+    run): mark the unstable ones, and raise the stable ones' sigma to the labelling spread their
+    counterpart reveals (:func:`add_labelling_spread`; module doc). Records
+    ``diagnostics["second_opinion"]`` = {"axis_deg": gap or None, "type": counterpart type or
+    None, "overlap": Jaccard} on every joint; appends ``part N: ...`` warnings. In place."""
     others = [(p, _points(other_labels, p.spec.id)) for p in other_parts if p.joint is not None]
     for part in parts:
         joint = part.joint
