@@ -190,6 +190,7 @@ def test_bench_on_one_object_writes_everything(tmp_path):
     lever = next(r for r in result.rows if r["method"] == "sparseart")
     assert lever["state_sigma"] > 0 and lever["origin_sigma"] is None and lever["axis_sigma_deg"] > 0
     assert ours["state_sigma_coverage"] in (0.0, 1.0) and ours["position_sigma_coverage"] is None
+    assert lever["gt_state"] > 0 and ours["full_success_rate"] in (0.0, 1.0)
     for name in ("rows.csv", "rows.json", "summary.csv", "summary.json", "table.txt", "error_vs_time.png",
                  "error_vs_factor.png"):
         assert (tmp_path / name).stat().st_size > 0, name

@@ -302,6 +302,22 @@ def test_summarise_sigma_coverage_counts_successful_joints_with_a_stated_sigma()
     assert summarise(rows[3:])["sigma_coverage"] is None
 
 
+def test_full_success_needs_the_state_too():
+    """The axis alone passes a door turned the wrong way about its hinge line (measured on robot
+    renders: state errors of 112-180 deg at axis errors of 0.2-5 deg) and a slide of the wrong
+    length; a full success also turns to within 10 deg or slides to within 10 % of the truth."""
+    door = joint_errors(rev(Z, [0, 0, 0], 0.6), rev(Z, [0, 0, 0], 0.64))         # 2.3 deg short
+    wrong_way = joint_errors(rev(Z, [0, 0, 0], -1.35), rev(Z, [0, 0, 0], 0.64))  # turned back
+    drawer = joint_errors(pri(X, [0, 0, 0], 0.19), pri(X, [0, 0, 0], 0.2))       # 5 % short
+    short = joint_errors(pri(X, [0, 0, 0], 0.15), pri(X, [0, 0, 0], 0.2))        # 25 % short
+    assert door["gt_state"] == pytest.approx(np.degrees(0.64)) and drawer["gt_state"] == pytest.approx(0.2)
+    assert wrong_way["axis_deg"] < 1e-6 and summarise([wrong_way])["success_rate"] == 1.0
+    out = summarise([door, wrong_way, drawer, short])
+    assert out["success_rate"] == 1.0 and out["full_success_rate"] == pytest.approx(0.5)
+    assert summarise([unmatched_joint_errors(rev(Z, [0, 0, 0], 0.5))])["full_success_rate"] == 0.0
+    assert summarise([{k: v for k, v in door.items() if k != "gt_state"}])["full_success_rate"] is None
+
+
 def test_summarise_position_and_state_coverage_read_their_own_sigma():
     """The hinge line's position and the angle or slide have their own stated sigma; each is
     judged over the successful joints of the right type that state one."""

@@ -249,18 +249,20 @@ def _fmt(value: Any, digits: int = 3) -> str:
 
 
 def summary_table(summary: list[dict[str, Any]]) -> str:
-    """One line per setting and method: type accuracy, success, axis mean/median, position median,
+    """One line per setting and method: type accuracy, success, full success (``full``: the type
+    and the state right too, :func:`~sparseart.bench.metrics.summarise`), axis mean/median, position median,
     state medians, median seconds, the share of successful joints whose axis error is within the
     stated 1-sigma (``1σ cov``; ~63 % is honest for the axis angle), the same for the hinge line's
     position and the angle or slide (``pos 1σ``, at least ~63 %; ``st 1σ``, ~68 %) and the movable parts
     reported that match no true joint (``extra``, :func:`extra_parts`)."""
-    header = (f"{'setting':17s} {'method':9s} {'n':>3s} {'type':>5s} {'succ':>5s} {'axis mean':>9s} "
+    header = (f"{'setting':17s} {'method':9s} {'n':>3s} {'type':>5s} {'succ':>5s} {'full':>5s} {'axis mean':>9s} "
               f"{'axis med':>8s} {'pos med':>8s} {'rev° med':>8s} {'pris med':>8s} {'sec med':>7s} {'1σ cov':>6s} "
               f"{'pos 1σ':>6s} {'st 1σ':>6s} {'extra':>5s}")
     lines = [header]
     for s in summary:
         lines.append(f"{s['setting']:17s} {s['method']:9s} {s['count']:3d} {_fmt(s['type_accuracy'], 2):>5s} "
-                     f"{_fmt(s['success_rate'], 2):>5s} {_fmt(s['axis_deg_mean'], 2):>9s} "
+                     f"{_fmt(s['success_rate'], 2):>5s} {_fmt(s.get('full_success_rate'), 2):>5s} "
+                     f"{_fmt(s['axis_deg_mean'], 2):>9s} "
                      f"{_fmt(s['axis_deg_median'], 2):>8s} {_fmt(s['position_median'], 4):>8s} "
                      f"{_fmt(s['state_revolute_deg_median'], 2):>8s} {_fmt(s['state_prismatic_median'], 4):>8s} "
                      f"{_fmt(s['seconds_median'], 2):>7s} {_fmt(s.get('sigma_coverage'), 2):>6s} "
@@ -290,7 +292,7 @@ def ratio_note(summary: list[dict[str, Any]]) -> str:
 
 
 CSV_FIELDS = ("object", "setting", "method", "name", "gt_type", "pred_type", "type_correct", "unmatched",
-              "axis_deg", "position", "state", "render_seconds", "pipeline_seconds",
+              "axis_deg", "position", "state", "gt_state", "render_seconds", "pipeline_seconds",
               *(f"{s}_seconds" for s in STAGES), "n_predicted", "n_warnings", "seed",
               "axis_sigma_deg", "origin_sigma", "state_sigma", "confidence")
 

@@ -51,6 +51,8 @@ PARALLEL_EPS = 1e-6
 """Below this ``|a_p x a_g|`` (unit axes) two lines are treated as parallel."""
 
 SUCCESS_AXIS_DEG = 10.0
+SUCCESS_STATE_DEG = 10.0     # a full success also turns to within this of the true angle ...
+SUCCESS_STATE_SHARE = 0.1    # ... or slides to within this share of the true travel
 """A joint counts as a success when its axis angle error is below this many degrees."""
 
 UNMATCHED_AXIS_DEG = 90.0
@@ -245,10 +247,19 @@ def joint_errors(pred: Any, gt: Any) -> dict[str, Any]:
         "axis_deg": float(axis_deg),
         "position": None if position is None else float(position),
         "state": float(state),
+        "gt_state": _true_motion(gt, t_g),
         "gt_type": t_g,
         "pred_type": t_p,
         "unmatched": False,
     }
+
+
+def _true_motion(gt: Any, gt_type: str) -> float:
+    """The ground truth's own motion in the state error's unit: |angle| in degrees (revolute) or
+    |distance| in frame units (prismatic)."""
+    if gt_type == "revolute":
+        return float(abs(np.degrees(_scalar(_field(gt, "angle"), "gt angle"))))
+    return float(abs(_scalar(_field(gt, "distance"), "gt distance")))
 
 
 def unmatched_joint_errors(gt: Any, position_max: float = math.inf, state_max: float | None = None) -> dict[str, Any]:
@@ -269,6 +280,7 @@ def unmatched_joint_errors(gt: Any, position_max: float = math.inf, state_max: f
         "axis_deg": UNMATCHED_AXIS_DEG,
         "position": float(position_max) if t_g == "revolute" else None,
         "state": float(state_max),
+        "gt_state": _true_motion(gt, t_g),
         "gt_type": t_g,
         "pred_type": None,
         "unmatched": True,
@@ -392,6 +404,18 @@ def _stats(values: list[float]) -> tuple[float | None, float | None]:
     return float(np.mean(a)), float(np.median(a))
 
 
+def _fully_right(e: Mapping[str, Any]) -> bool | None:
+    """Axis, type and state all right (:func:`summarise`'s ``full_success_rate``); None without
+    ``gt_state``."""
+    if e.get("gt_state") is None:
+        return None
+    if not e.get("type_correct") or float(e["axis_deg"]) >= SUCCESS_AXIS_DEG:
+        return False
+    gt_type = e.get("gt_type") or ("revolute" if e.get("position") is not None else "prismatic")
+    limit = SUCCESS_STATE_DEG if gt_type == "revolute" else SUCCESS_STATE_SHARE * float(e["gt_state"])
+    return float(e["state"]) < limit
+
+
 def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Aggregate per-joint error dicts (from :func:`joint_errors` / :func:`unmatched_joint_errors`).
 
@@ -401,6 +425,10 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
       ``n_unmatched``.
     * ``type_accuracy``: fraction with ``type_correct``.
     * ``success_rate``: fraction with ``axis_deg < 10``.
+    * ``full_success_rate``: fraction that also has the right type and the state within
+      ``SUCCESS_STATE_DEG`` (revolute) or ``SUCCESS_STATE_SHARE`` of the true travel (prismatic):
+      the axis alone passes a door turned the wrong way about the right line, or a slide of the
+      wrong length. None when a row carries no ``gt_state`` (rows from before it was recorded).
     * ``axis_deg_mean``, ``axis_deg_median``: degrees, over all joints.
     * ``position_mean``, ``position_median``: object units (not x10), over revolute gt joints.
     * ``state_revolute_deg_mean`` / ``_median``: degrees, over revolute gt joints.
@@ -433,8 +461,10 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
             st_rev.append(float(e["state"]))
         else:
             st_pri.append(float(e["state"]))
+    full = [_fully_right(e) for e in errors]
     out: dict[str, Any] = {
         "count": n,
+        "full_success_rate": (sum(full) / n) if n and all(f is not None for f in full) else None,
         "n_revolute": len(st_rev),
         "n_prismatic": len(st_pri),
         "n_unmatched": n_unmatched,
