@@ -2,7 +2,8 @@
 
 Usage: ``python benchmarks/sigma_coverage.py ROWS.json [ROWS.json ...]`` with the ``rows.json`` of
 ``sparseart bench``. Per file and setting, over the successful sparseart joints (axis error < 10
-deg) of the right type that state the sigma: the share whose error lies within 1 x and 2 x it,
+deg) of the right type that state the sigma (:func:`sparseart.bench.metrics.covered_share`):
+the share whose error lies within 1 x and 2 x it,
 for the axis (``axis_deg`` / ``axis_sigma_deg``), the hinge line's position (``position`` /
 ``origin_sigma``, revolute) and the angle or slide (``state`` / ``state_sigma``). Honest levels:
 63 % / 98 % for the axis (the norm of two components: 1 - exp(-k^2 / 2) for a 2-D normal), at
@@ -15,32 +16,23 @@ from __future__ import annotations
 import json
 import sys
 
-SUCCESS_DEG = 10.0
+from sparseart.bench.metrics import covered_share
+
 QUANTITIES = (("axis", "axis_deg", "axis_sigma_deg"), ("position", "position", "origin_sigma"),
               ("state", "state", "state_sigma"))
-
-
-def coverage(rows: list[dict], error: str, sigma: str) -> tuple[int, float | None, float | None]:
-    """(joints judged, share within 1 sigma, share within 2 sigma) of ``rows`` that carry both
-    ``error`` and ``sigma`` (None shares when there are none)."""
-    ratios = [float(r[error]) / float(r[sigma]) if float(r[sigma]) > 0 else float("inf")
-              for r in rows if r.get(error) is not None and r.get(sigma) is not None]
-    if not ratios:
-        return 0, None, None
-    return len(ratios), sum(q <= 1.0 for q in ratios) / len(ratios), sum(q <= 2.0 for q in ratios) / len(ratios)
 
 
 def main(paths: list[str]) -> None:
     print(f"{'file':40s} {'setting':20s} " + " ".join(f"{name:>18s}" for name, _, _ in QUANTITIES))
     print(f"{'':40s} {'':20s} " + " ".join(f"{'n   1σ    2σ':>18s}" for _ in QUANTITIES))
     for path in paths:
-        rows = [r for r in json.load(open(path)) if r["method"] == "sparseart" and not r.get("unmatched")
-                and r["axis_deg"] < SUCCESS_DEG and r.get("type_correct")]
+        rows = [r for r in json.load(open(path)) if r["method"] == "sparseart" and not r.get("unmatched")]
         for setting in sorted({r["setting"] for r in rows}):
             chosen = [r for r in rows if r["setting"] == setting]
             cells = []
             for _, error, sigma in QUANTITIES:
-                n, one, two = coverage(chosen, error, sigma)
+                n, one = covered_share(chosen, error, sigma)
+                two = covered_share(chosen, error, sigma, factor=2.0)[1]
                 cells.append(f"{n:4d} {one:5.2f} {two:5.2f}" if n else f"{'-':>18s}")
             print(f"{path[-40:]:40s} {setting:20s} " + " ".join(f"{c:>18s}" for c in cells))
 

@@ -51,9 +51,13 @@ PARALLEL_EPS = 1e-6
 """Below this ``|a_p x a_g|`` (unit axes) two lines are treated as parallel."""
 
 SUCCESS_AXIS_DEG = 10.0
-SUCCESS_STATE_DEG = 10.0     # a full success also turns to within this of the true angle ...
-SUCCESS_STATE_SHARE = 0.1    # ... or slides to within this share of the true travel
 """A joint counts as a success when its axis angle error is below this many degrees."""
+
+SUCCESS_STATE_DEG = 10.0
+"""A full success also turns to within this many degrees of the true angle ..."""
+
+SUCCESS_STATE_SHARE = 0.1
+"""... or slides to within this share of the true travel."""
 
 UNMATCHED_AXIS_DEG = 90.0
 """Axis angle error charged to a ground-truth part that no prediction was matched to."""
@@ -404,6 +408,23 @@ def _stats(values: list[float]) -> tuple[float | None, float | None]:
     return float(np.mean(a)), float(np.median(a))
 
 
+def _gt_type(e: Mapping[str, Any]) -> str:
+    """An error dict's ground-truth type; dicts without ``gt_type`` are revolute when they carry a
+    ``position``."""
+    return e.get("gt_type") or ("revolute" if e.get("position") is not None else "prismatic")
+
+
+def covered_share(errors: Sequence[Mapping[str, Any]], error: str, sigma: str, factor: float = 1.0,
+                  right_type: bool = True) -> tuple[int, float | None]:
+    """(joints judged, share whose ``error`` lies within ``factor`` x their stated ``sigma``) over
+    the successful joints (axis below ``SUCCESS_AXIS_DEG``) that carry both keys, and that have
+    the right type when ``right_type``; None share when there are none. O(R)."""
+    within = [float(e[error]) <= factor * float(e[sigma]) for e in errors
+              if e.get(sigma) is not None and e.get(error) is not None
+              and (e.get("type_correct") or not right_type) and float(e["axis_deg"]) < SUCCESS_AXIS_DEG]
+    return len(within), (sum(within) / len(within) if within else None)
+
+
 def _fully_right(e: Mapping[str, Any]) -> bool | None:
     """Axis, type and state all right (:func:`summarise`'s ``full_success_rate``); None without
     ``gt_state``."""
@@ -411,8 +432,7 @@ def _fully_right(e: Mapping[str, Any]) -> bool | None:
         return None
     if not e.get("type_correct") or float(e["axis_deg"]) >= SUCCESS_AXIS_DEG:
         return False
-    gt_type = e.get("gt_type") or ("revolute" if e.get("position") is not None else "prismatic")
-    limit = SUCCESS_STATE_DEG if gt_type == "revolute" else SUCCESS_STATE_SHARE * float(e["gt_state"])
+    limit = SUCCESS_STATE_DEG if _gt_type(e) == "revolute" else SUCCESS_STATE_SHARE * float(e["gt_state"])
     return float(e["state"]) < limit
 
 
@@ -449,7 +469,7 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     axis, pos, st_rev, st_pri = [], [], [], []
     n_type, n_success, n_unmatched = 0, 0, 0
     for e in errors:
-        gt_type = e.get("gt_type") or ("revolute" if e.get("position") is not None else "prismatic")
+        gt_type = _gt_type(e)
         a = float(e["axis_deg"])
         axis.append(a)
         n_success += a < SUCCESS_AXIS_DEG
@@ -471,16 +491,9 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         "type_accuracy": n_type / n if n else None,
         "success_rate": n_success / n if n else None,
     }
-    covered = [float(e["axis_deg"]) <= float(e["axis_sigma_deg"]) for e in errors
-               if e.get("axis_sigma_deg") is not None and float(e["axis_deg"]) < SUCCESS_AXIS_DEG]
-    out["sigma_count"] = len(covered)
-    out["sigma_coverage"] = sum(covered) / len(covered) if covered else None
-    for key, error, sigma in (("position_sigma_coverage", "position", "origin_sigma"),
-                              ("state_sigma_coverage", "state", "state_sigma")):
-        within = [float(e[error]) <= float(e[sigma]) for e in errors
-                  if e.get(sigma) is not None and e.get(error) is not None and e.get("type_correct")
-                  and float(e["axis_deg"]) < SUCCESS_AXIS_DEG]
-        out[key] = sum(within) / len(within) if within else None
+    out["sigma_count"], out["sigma_coverage"] = covered_share(errors, "axis_deg", "axis_sigma_deg", right_type=False)
+    out["position_sigma_coverage"] = covered_share(errors, "position", "origin_sigma")[1]
+    out["state_sigma_coverage"] = covered_share(errors, "state", "state_sigma")[1]
     for key, vals in (("axis_deg", axis), ("position", pos),
                       ("state_revolute_deg", st_rev), ("state_prismatic", st_pri)):
         mean, median = _stats(vals)
