@@ -186,8 +186,8 @@ def test_tied_hinge_rivals_widen_the_axis_sigma_and_far_ones_do_not():
     tilted = hinge(0.0100, [0, np.sin(np.radians(9)), np.cos(np.radians(9))], [0.0, 0.0, 0.0])  # as near, 9 deg
     far = hinge(0.0099, [0, 1, 0], [0.6, 0.0, 0.0])                                           # off the wall
     chosen = choose_fit([on_wall, tilted, far], part, static)
-    assert (chosen is on_wall or chosen is tilted) and chosen.diagnostics["tied_hinge_deg"] == pytest.approx(9.0, abs=1e-6)
-    widen_for_tied_hinges(chosen, chosen.diagnostics["tied_hinge_deg"])
+    assert (chosen is on_wall or chosen is tilted) and chosen.diagnostics["tied_hinge"]["axis_deg"] == pytest.approx(9.0, abs=1e-6)
+    widen_for_tied_hinges(chosen, chosen.diagnostics["tied_hinge"])
     assert chosen.uncertainty["axis_deg"] == pytest.approx(9.0) and "rival hinge axis" in chosen.warnings[-1]
 
     # a rival on the wall that fits 35 % worse still goes to the tie-break (within 1.5 x): the
@@ -205,7 +205,7 @@ def test_tied_hinge_rivals_widen_the_axis_sigma_and_far_ones_do_not():
     assert choose_fit([nearer, fits_better], part, wall) is nearer
     nearer, fits_better = hinge(0.0105, [0, 0, 1], [-0.30, 0.0, 0.0]), hinge(0.0100, tilt, [-0.35, 0.0, 0.0])
     chosen = choose_fit([nearer, fits_better], part, wall)
-    assert chosen is fits_better and chosen.diagnostics["tied_hinge_deg"] == pytest.approx(12.0, abs=1e-6)
+    assert chosen is fits_better and chosen.diagnostics["tied_hinge"]["axis_deg"] == pytest.approx(12.0, abs=1e-6)
     assert choose_fit([nearer, hinge(0.0100, [0, 0, 1], [-0.45, 0.0, 0.0])], part, wall) is nearer  # 1.5 x: told apart
     # the best fit lies farther still (0.6, out of the tie): the better of the two about as near
     # wins, and the warning says that no hinge axis lies on the static part seen
@@ -217,9 +217,42 @@ def test_tied_hinge_rivals_widen_the_axis_sigma_and_far_ones_do_not():
 
     alone = hinge(0.0101, [0, 0, 1], [0.0, 0.0, 0.0])
     chosen = choose_fit([alone, hinge(0.0099, [0, 1, 0], [0.6, 0.0, 0.0])], part, static)
-    assert chosen is alone and "tied_hinge_deg" not in chosen.diagnostics
-    widen_for_tied_hinges(chosen, chosen.diagnostics.get("tied_hinge_deg"))
+    assert chosen is alone and "tied_hinge" not in chosen.diagnostics
+    widen_for_tied_hinges(chosen, chosen.diagnostics.get("tied_hinge"))
     assert chosen.uncertainty["axis_deg"] == 2.0
+
+
+def test_tied_hinge_rivals_widen_the_hinge_line_and_angle_sigma():
+    """A flat lid turned by 90 deg fixes its hinge line only through its edges: rivals at about
+    the same residual and as near the static part lie across the line from the chosen one, and
+    turn a little more or less. The chosen fit's origin and angle sigma cover the widest of them
+    (a rival given with its axis the other way round is read along the chosen axis); a sigma
+    already wider stays, and no axis warning is added when the axis sigma does not grow."""
+    from sparseart.joints.candidates import tied_spread, widen_for_tied_hinges
+
+    def hinge(residual: float, axis: list[float], origin: list[float], angle_deg: float) -> JointEstimate:
+        estimate = _estimate("revolute", residual, angle_deg=angle_deg)
+        estimate.axis = np.asarray(axis, dtype=np.float64)
+        estimate.origin = np.asarray(origin, dtype=np.float64)
+        estimate.uncertainty = {"axis_deg": 2.0, "origin": 0.003, "angle": np.radians(0.5)}
+        return estimate
+
+    chosen = hinge(0.0100, [0, 0, 1], [0.0, 0.0, 0.0], 90.0)
+    across = hinge(0.0104, [0, 0, 1], [0.0, 0.03, 0.2], 91.0)            # 0.03 across the line (0.2 along it)
+    reversed_rival = hinge(0.0105, [0, 0, -1], [0.01, 0.0, 0.0], -92.0)  # the same motion written backwards
+    spread = tied_spread(chosen, [across, reversed_rival])
+    assert spread["origin"] == pytest.approx(0.03) and spread["angle"] == pytest.approx(np.radians(2.0))
+    assert spread["axis_deg"] == pytest.approx(0.0, abs=1e-6)
+    warnings_before = len(chosen.warnings)
+    widen_for_tied_hinges(chosen, spread)
+    assert chosen.uncertainty["origin"] == pytest.approx(0.03)
+    assert chosen.uncertainty["angle"] == pytest.approx(np.radians(2.0))
+    assert chosen.uncertainty["axis_deg"] == 2.0 and len(chosen.warnings) == warnings_before
+
+    wide = hinge(0.0100, [0, 0, 1], [0.0, 0.0, 0.0], 90.0)
+    wide.uncertainty["origin"] = 0.1
+    widen_for_tied_hinges(wide, spread)
+    assert wide.uncertainty["origin"] == 0.1
 
 
 def _face(rng: np.random.Generator, noise: float = 0.001) -> np.ndarray:
