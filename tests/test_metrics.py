@@ -167,6 +167,21 @@ def test_wrong_type_revolute_gt():
     assert e["gt_type"] == "revolute" and e["pred_type"] == "prismatic"
 
 
+def test_state_along_reads_the_angle_or_slide_alone():
+    """The stated angle / slide sigma is about the state along the joint's own axis; the whole
+    motion's error also carries the axis error. An axis given the other way round negates the
+    state; the wrong type has no state along an axis."""
+    tilted = np.array([np.sin(np.radians(3.0)), 0.0, np.cos(np.radians(3.0))])
+    e = joint_errors(rev(tilted, [0, 0, 0], math.radians(56.0)), rev(Z, [0, 0, 0], math.radians(55.0)))
+    assert e["state_along"] == pytest.approx(1.0) and e["state"] > 2.5
+    flipped = joint_errors(rev(-Z, [0, 0, 0], math.radians(-57.0)), rev(Z, [0, 0, 0], math.radians(55.0)))
+    assert flipped["state_along"] == pytest.approx(2.0)
+    slide = joint_errors(pri(-tilted, [0, 0, 0], -0.31), pri(Z, [0, 0, 0], 0.3))
+    assert slide["state_along"] == pytest.approx(0.01) and slide["state"] > 0.016
+    assert joint_errors(pri(X, [0, 0, 0], 0.3), rev(Z, [0, 0, 0], 1.0))["state_along"] is None
+    assert unmatched_joint_errors(pri(Z, [0, 0, 0], 0.3))["state_along"] is None
+
+
 def test_wrong_type_prismatic_gt():
     e = joint_errors(rev(Z, [0, 0, 0], 1.0), pri(Z, [0, 0, 0], -0.25))
     assert e["type_correct"] is False
@@ -323,7 +338,8 @@ def test_summarise_position_and_state_coverage_read_their_own_sigma():
     judged over the successful joints of the right type that state one."""
     def row(position, origin_sigma, state, state_sigma, axis=1.0, right_type=True):
         return {"axis_deg": axis, "axis_sigma_deg": 2.0, "type_correct": right_type, "gt_type": "revolute",
-                "position": position, "origin_sigma": origin_sigma, "state": state, "state_sigma": state_sigma}
+                "position": position, "origin_sigma": origin_sigma, "state": 50.0, "state_along": state,
+                "state_sigma": state_sigma}
 
     rows = [row(0.01, 0.02, 1.0, 2.0), row(0.03, 0.02, 3.0, 2.0), row(0.01, 0.02, 3.0, 2.0),
             row(0.01, None, 1.0, None),                         # no sigma stated: left out

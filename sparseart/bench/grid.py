@@ -292,7 +292,7 @@ def ratio_note(summary: list[dict[str, Any]]) -> str:
 
 
 CSV_FIELDS = ("object", "setting", "method", "name", "gt_type", "pred_type", "type_correct", "unmatched",
-              "axis_deg", "position", "state", "gt_state", "render_seconds", "pipeline_seconds",
+              "axis_deg", "position", "state", "state_along", "gt_state", "render_seconds", "pipeline_seconds",
               *(f"{s}_seconds" for s in STAGES), "n_predicted", "n_warnings", "seed",
               "axis_sigma_deg", "origin_sigma", "state_sigma", "confidence")
 
