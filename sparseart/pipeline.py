@@ -200,6 +200,21 @@ def _second_opinion(start: LabelledCloud, end: LabelledCloud, scene: Scene | Non
     apply_second_opinion(parts, labels, other_parts, other_labels, warnings)
 
 
+def _add_registration_shift(parts: list, registration: dict | None) -> None:
+    """Every joint's sigma widened by the shift that the feature registration of the states shows
+    (:func:`~sparseart.joints.uncertainty.add_registration_shift`); nothing for states in one frame
+    from cameras or a still camera, whose depth the registration never compared. O(parts)."""
+    states = (registration or {}).get("states", {})
+    rmse = states.get("rmse")
+    if states.get("method") != "features" or not states.get("trusted", False) or rmse is None:
+        return
+    from sparseart.joints.uncertainty import add_registration_shift
+
+    for part in parts:
+        if part.joint is not None:
+            add_registration_shift(part.joint, float(rmse))
+
+
 def _options(options: RunOptions | None, overrides: dict) -> RunOptions:
     options = replace(options) if options is not None else RunOptions()
     for key, value in overrides.items():
@@ -328,6 +343,7 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
                      else "fitting revolute and prismatic, choosing by penalised residual"):
         parts = fit_parts(start, end, labels, joint_type=options.joint_type,
                           config=replace(options.fit or FitConfig(), seed=seed), warnings=warnings)
+        _add_registration_shift(parts, registration)
     if options.second_opinion and isinstance(labeler, RuleBasedLabeler) and _labelled_by_motion(labels):
         with clock.stage("second_opinion", "no masks: labelled and fitted again with another seed"):
             _second_opinion(start, end, scene, labels, parts, labeler, hints, options, warnings, posed=known_frame)

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sparseart.joints.uncertainty import add_frame_sigma, frame_misfit
+from sparseart.joints.uncertainty import REGISTRATION_SHIFT_SHARE, add_frame_sigma, add_registration_shift, frame_misfit
+from sparseart.types import JointEstimate
 
 
 def _box_surface(count: int, rng: np.random.Generator) -> np.ndarray:
@@ -95,3 +96,54 @@ def test_a_slide_in_a_turned_frame_stays_a_slide_once_the_frame_turn_is_known():
     assert error < 15.0                      # the frame's turn tilts the slide (lever ~0.7 over 0.2)
     # the stated sigma grows from the frame (nearest-surface misfits see ~40 % of a rigid turn)
     assert aware.diagnostics["uncertainty_before_frame"]["axis_deg"] < 1.0 < 0.25 * error < aware.uncertainty["axis_deg"]
+
+
+# -- the shift the feature registration of the states shows (add_registration_shift) ----------------
+
+def _joint(kind: str, unit: float = 1.0) -> JointEstimate:
+    return JointEstimate(type=kind, axis=np.array([0.0, 0.0, 1.0]), origin=np.zeros(3),
+                         angle=np.radians(60.0) if kind == "revolute" else None,
+                         distance=None if kind == "revolute" else 0.3 * unit, transform=np.eye(4),
+                         uncertainty={"axis_deg": 1.5, "origin": 0.004 * unit,
+                                      **({"angle": 0.02} if kind == "revolute" else {"distance": 0.005 * unit})},
+                         residual=0.01 * unit, confidence=0.9, diagnostics={})
+
+
+def test_the_registration_residual_shifts_the_hinge_line_and_the_slide_not_the_axis_in_any_unit():
+    """Depth off by ~2 % moves surfaces along the camera rays: the hinge line and the slide carry
+    REGISTRATION_SHIFT_SHARE x the states' feature residual in quadrature; the axis and the angle
+    (turns) keep theirs. In millimetres the same joint gets the same sigma x 1000."""
+    hinge, slide = _joint("revolute"), _joint("prismatic")
+    add_registration_shift(hinge, 0.05)
+    add_registration_shift(slide, 0.05)
+    shift = REGISTRATION_SHIFT_SHARE * 0.05
+    assert hinge.uncertainty["origin"] == pytest.approx(np.hypot(0.004, shift))
+    assert hinge.uncertainty["axis_deg"] == 1.5 and hinge.uncertainty["angle"] == 0.02
+    assert slide.uncertainty["distance"] == pytest.approx(np.hypot(0.005, shift))
+    assert slide.uncertainty["origin"] == 0.004 and slide.diagnostics["registration_shift"] == pytest.approx(shift)
+    in_mm = _joint("revolute", 1000.0)
+    add_registration_shift(in_mm, 50.0)
+    assert in_mm.uncertainty["origin"] == pytest.approx(1000.0 * hinge.uncertainty["origin"])
+    for bad in (0.0, float("nan"), -1.0):
+        untouched = _joint("revolute")
+        add_registration_shift(untouched, bad)
+        assert untouched.uncertainty["origin"] == 0.004 and "registration_shift" not in untouched.diagnostics
+
+
+def test_only_a_trusted_feature_registration_of_the_states_widens_the_joints():
+    """States in one frame from cameras or a still camera were never compared by features: their
+    joints keep their sigma; an untrusted feature alignment (replaced by another) neither."""
+    from sparseart.pipeline import _add_registration_shift
+    from sparseart.types import PartResult, PartSpec
+
+    def parts() -> list:
+        return [PartResult(PartSpec(id=1, role="movable"), 100, _joint("revolute"))]
+
+    for registration in ({}, {"states": {"method": "still camera", "trusted": True}},
+                         {"states": {"method": "features", "trusted": False, "rmse": 0.05}}):
+        kept = parts()
+        _add_registration_shift(kept, registration)
+        assert kept[0].joint.uncertainty["origin"] == 0.004
+    widened = parts()
+    _add_registration_shift(widened, {"states": {"method": "features", "trusted": True, "rmse": 0.05}})
+    assert widened[0].joint.uncertainty["origin"] > 0.004
