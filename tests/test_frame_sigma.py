@@ -3,11 +3,14 @@ add_frame_sigma): zero when the static part's two states agree to their sampling
 when they do not, unit-free."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sparseart.joints.uncertainty import REGISTRATION_SHIFT_SHARE, add_frame_sigma, add_registration_shift, frame_misfit
+from sparseart.joints.uncertainty import (DEPTH_RATIO_SHIFT_SHARE, REGISTRATION_SHIFT_SHARE, add_frame_shift, add_frame_sigma,
+                                         depth_ratio_shift, frame_misfit, registration_shift)
 from sparseart.types import JointEstimate
 
 
@@ -98,7 +101,7 @@ def test_a_slide_in_a_turned_frame_stays_a_slide_once_the_frame_turn_is_known():
     assert aware.diagnostics["uncertainty_before_frame"]["axis_deg"] < 1.0 < 0.25 * error < aware.uncertainty["axis_deg"]
 
 
-# -- the shift the feature registration of the states shows (add_registration_shift) ----------------
+# -- the shift of the whole frame that the alignment measured (add_frame_shift) ---------------------
 
 def _joint(kind: str, unit: float = 1.0) -> JointEstimate:
     return JointEstimate(type=kind, axis=np.array([0.0, 0.0, 1.0]), origin=np.zeros(3),
@@ -109,41 +112,72 @@ def _joint(kind: str, unit: float = 1.0) -> JointEstimate:
                          residual=0.01 * unit, confidence=0.9, diagnostics={})
 
 
-def test_the_registration_residual_shifts_the_hinge_line_and_the_slide_not_the_axis_in_any_unit():
-    """Depth off by ~2 % moves surfaces along the camera rays: the hinge line and the slide carry
-    REGISTRATION_SHIFT_SHARE x the states' feature residual in quadrature; the axis and the angle
-    (turns) keep theirs. In millimetres the same joint gets the same sigma x 1000."""
+def test_a_frame_shift_widens_the_hinge_line_and_the_slide_not_the_axis_in_any_unit():
+    """Depth off by ~2 % moves surfaces along the camera rays: the hinge line, a slide's origin and
+    its length carry the shift in quadrature; the axis and the angle (turns) keep theirs. In millimetres the same
+    joint gets the same sigma x 1000. The two readings of the shift: REGISTRATION_SHIFT_SHARE x the
+    states' feature residual, DEPTH_RATIO_SHIFT_SHARE x the depth disagreement x the distance."""
+    assert registration_shift(0.05) == pytest.approx(REGISTRATION_SHIFT_SHARE * 0.05)
+    assert depth_ratio_shift(0.02, 3.0) == pytest.approx(DEPTH_RATIO_SHIFT_SHARE * 0.06)
+    assert depth_ratio_shift(0.02, 3000.0) == pytest.approx(1000.0 * depth_ratio_shift(0.02, 3.0))
     hinge, slide = _joint("revolute"), _joint("prismatic")
-    add_registration_shift(hinge, 0.05)
-    add_registration_shift(slide, 0.05)
-    shift = REGISTRATION_SHIFT_SHARE * 0.05
-    assert hinge.uncertainty["origin"] == pytest.approx(np.hypot(0.004, shift))
+    add_frame_shift(hinge, 0.0175)
+    add_frame_shift(slide, 0.0175)
+    assert hinge.uncertainty["origin"] == pytest.approx(np.hypot(0.004, 0.0175))
     assert hinge.uncertainty["axis_deg"] == 1.5 and hinge.uncertainty["angle"] == 0.02
-    assert slide.uncertainty["distance"] == pytest.approx(np.hypot(0.005, shift))
-    assert slide.uncertainty["origin"] == 0.004 and slide.diagnostics["registration_shift"] == pytest.approx(shift)
+    assert slide.uncertainty["distance"] == pytest.approx(np.hypot(0.005, 0.0175))
+    assert slide.uncertainty["origin"] == pytest.approx(np.hypot(0.004, 0.0175))     # a slide's origin moves too
+    assert slide.diagnostics["frame_shift"] == pytest.approx(0.0175)
+    only_line = _joint("prismatic")
+    add_frame_shift(only_line, 0.0175, keys=("origin",))
+    assert only_line.uncertainty["distance"] == 0.005
     in_mm = _joint("revolute", 1000.0)
-    add_registration_shift(in_mm, 50.0)
+    add_frame_shift(in_mm, 17.5)
     assert in_mm.uncertainty["origin"] == pytest.approx(1000.0 * hinge.uncertainty["origin"])
     for bad in (0.0, float("nan"), -1.0):
         untouched = _joint("revolute")
-        add_registration_shift(untouched, bad)
-        assert untouched.uncertainty["origin"] == 0.004 and "registration_shift" not in untouched.diagnostics
+        add_frame_shift(untouched, bad)
+        assert untouched.uncertainty["origin"] == 0.004 and "frame_shift" not in untouched.diagnostics
 
 
-def test_only_a_trusted_feature_registration_of_the_states_widens_the_joints():
-    """States in one frame from cameras or a still camera were never compared by features: their
-    joints keep their sigma; an untrusted feature alignment (replaced by another) neither."""
-    from sparseart.pipeline import _add_registration_shift
-    from sparseart.types import PartResult, PartSpec
+def test_the_pipeline_reads_the_shift_off_what_the_alignment_measured():
+    """States aligned by features (trusted): the registration residual, on hinges and slides.
+    States in one frame from posed cameras: the depth-ratio disagreement x the part's distance from
+    its camera, on the origins only (both states' depth moved alike, a slide's length keeps its
+    sigma). Nothing for a still camera without poses, an untrusted alignment, or no report."""
+    from sparseart.pipeline import _add_frame_shift
+    from sparseart.types import Camera, Frame, LabelledCloud, PartLabels, PartResult, PartSpec, Scene
+
+    points = np.array([[0.0, 0.0, 3.0], [0.1, 0.0, 3.0], [0.0, 0.1, 3.0]])
+    start = LabelledCloud(state="start", points=points, colors=np.zeros((3, 3)), segment=np.zeros(3, dtype=np.int64),
+                          frame_index=np.zeros(3, dtype=np.int64), pixel_index=np.arange(3), confidence=np.ones(3))
+    labels = PartLabels(parts=[PartSpec(id=0, role="static"), PartSpec(id=1, role="movable"),
+                               PartSpec(id=2, role="movable")],
+                        start_part=np.array([1, 1, 2]), end_part=np.array([1, 1, 2]))
+    def frame(pose: np.ndarray | None) -> Frame:
+        return Frame(state="start", index=0, rgb_path=Path("start/rgb/000.png"), rgb=np.zeros((4, 4, 3), np.uint8),
+                     camera=Camera(K=np.eye(3), width=4, height=4, cam_to_world=pose))
+
+    posed = Scene(root=Path("."), start=[frame(np.eye(4))], end=[])
 
     def parts() -> list:
-        return [PartResult(PartSpec(id=1, role="movable"), 100, _joint("revolute"))]
+        return [PartResult(PartSpec(id=1, role="movable"), 2, _joint("revolute")),
+                PartResult(PartSpec(id=2, role="movable"), 1, _joint("prismatic"))]
 
-    for registration in ({}, {"states": {"method": "still camera", "trusted": True}},
-                         {"states": {"method": "features", "trusted": False, "rmse": 0.05}}):
+    unposed = Scene(root=Path("."), start=[frame(None)], end=[])
+    for registration, scene in (({}, posed), ({"states": {"method": "still camera", "trusted": True}}, unposed),
+                                ({"states": {"method": "features", "trusted": False, "rmse": 0.05}}, posed),
+                                ({"depth_ratio": [{"largest": 0.02}]}, unposed),
+                                ({"depth_ratio": [{"largest": 0.02}]}, None)):
         kept = parts()
-        _add_registration_shift(kept, registration)
-        assert kept[0].joint.uncertainty["origin"] == 0.004
-    widened = parts()
-    _add_registration_shift(widened, {"states": {"method": "features", "trusted": True, "rmse": 0.05}})
-    assert widened[0].joint.uncertainty["origin"] > 0.004
+        _add_frame_shift(kept, registration, start, labels, scene)
+        assert kept[0].joint.uncertainty["origin"] == 0.004 and kept[1].joint.uncertainty["distance"] == 0.005
+    featured = parts()
+    _add_frame_shift(featured, {"states": {"method": "features", "trusted": True, "rmse": 0.05}}, start, labels, None)
+    assert featured[0].joint.diagnostics["frame_shift"] == pytest.approx(registration_shift(0.05))
+    assert featured[1].joint.uncertainty["distance"] > 0.005
+    ratio = parts()
+    _add_frame_shift(ratio, {"states": {"method": "cameras"}, "depth_ratio": [{"largest": 0.02}]}, start, labels, posed)
+    distance = float(np.median(np.linalg.norm(points[:2], axis=1)))
+    assert ratio[0].joint.diagnostics["frame_shift"] == pytest.approx(depth_ratio_shift(0.02, distance))
+    assert ratio[1].joint.uncertainty["distance"] == 0.005 and ratio[1].joint.uncertainty["origin"] > 0.004

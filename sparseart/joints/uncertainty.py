@@ -38,9 +38,11 @@ from sparseart.joints.config import UNCERTAINTY_FLOOR
 from sparseart.joints.optimise import ModelFit, Problem, one_to_one_pairs, pair_weights
 from sparseart.joints.part import MIN_POINTS, Sample
 
-__all__ = ["REGISTRATION_SHIFT_SHARE", "UNCERTAINTY_FLOOR", "add_frame_sigma", "add_registration_shift", "axis_sigma_deg", "block_jackknife_covariance", "floor_covariance",
+__all__ = ["DEPTH_RATIO_SHIFT_SHARE", "REGISTRATION_SHIFT_SHARE", "UNCERTAINTY_FLOOR", "add_frame_shift", "add_frame_sigma",
+           "depth_ratio_shift", "axis_sigma_deg", "block_jackknife_covariance", "floor_covariance",
            "frame_misfit", "frame_turn",
-           "half_sample_covariance", "prismatic_sigma", "resample_covariance", "revolute_sigma", "spatial_blocks"]
+           "half_sample_covariance", "prismatic_sigma", "registration_shift", "resample_covariance", "revolute_sigma",
+           "spatial_blocks"]
 
 
 def spatial_blocks(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -265,25 +267,48 @@ def add_frame_sigma(uncertainty: dict[str, float], misfit: float, radius: float,
 # the states along a flat valley of the static surfaces.
 REGISTRATION_SHIFT_SHARE = 0.35
 
+# Share of "how far the two states' depths disagree" (the depth-ratio step's 95th percentile of
+# |z_end / z_start - 1| over the static scene, same camera) x the distance from the camera that a
+# hinge line placed from that depth moves, 1 sigma. Measured on robot-1view (one posed view per
+# state, reconstructor-grade depth; seeds 0-1, 20 hinges within 10 deg; seeds 2-3 and
+# robot-sensor-1view held out): hinges 0.1-4.4 x largest x distance off (largest 1.2-2.3 %, camera
+# 2.5-3.7 away), at a stated sigma that covered 40 % / 60 %.
+DEPTH_RATIO_SHIFT_SHARE = 1.0
 
-def add_registration_shift(joint, rmse: float) -> None:
-    """Widen a joint's stated sigma (in place) by the shift its frame carries from depth that the
-    registration of the states shows to be off: ``REGISTRATION_SHIFT_SHARE`` x ``rmse`` (scene units:
-    the RMS 3D distance between the features matched across the states after their alignment) joins
-    a revolute joint's hinge line and a prismatic joint's slide in quadrature; the axis and a
-    revolute angle are left alone.
 
-    Why: a reconstructor's or sensor's depth errors are mostly along the camera ray (a per-view scale,
-    a smooth warp of ~2 %), so they move whole surfaces -- the part, the body, the hinge line placed
-    from them -- by ~2 % of their distance from the camera, and turn them little. The static misfit
-    (:func:`frame_misfit`) measures nearest-point distances, which a shift along a surface does not
-    raise; matched features see every component. Not divided by any point count: systematic.
-    Records ``joint.diagnostics["registration_shift"]`` (scene units). No-op for rmse <= 0 or
+def add_frame_shift(joint, shift: float, keys: tuple[str, ...] = ("origin", "distance")) -> None:
+    """Widen a joint's stated sigma (in place) by a shift of its whole frame: ``shift`` (scene
+    units, 1 sigma) joins each of ``keys`` the joint states ("origin": a revolute hinge line;
+    "distance": a slide) in quadrature; the axis and a revolute angle are left alone.
+
+    Why: a reconstructor's or sensor's depth errors are mostly along the camera ray (a per-view
+    scale, a smooth warp of ~2 %), so they move whole surfaces -- the part, the body, the hinge line
+    placed from them -- by ~2 % of their distance from the camera, and turn them little. The fit
+    sees none of it: the points it lays onto each other are shifted alike. Callers read the shift
+    off what the alignment measured (:func:`registration_shift`, :func:`depth_ratio_shift`).
+    Records ``joint.diagnostics["frame_shift"]`` (scene units). No-op for a shift <= 0 or
     non-finite. O(1)."""
-    if not (np.isfinite(rmse) and rmse > 0):
+    if not (np.isfinite(shift) and shift > 0):
         return
-    shift = REGISTRATION_SHIFT_SHARE * float(rmse)
-    key = "origin" if joint.type == "revolute" else "distance"
-    if key in joint.uncertainty:
-        joint.uncertainty[key] = float(np.hypot(float(joint.uncertainty[key]), shift))
-    joint.diagnostics["registration_shift"] = shift
+    for key in keys:
+        if key in joint.uncertainty:
+            joint.uncertainty[key] = float(np.hypot(float(joint.uncertainty[key]), shift))
+    joint.diagnostics["frame_shift"] = float(shift)
+
+
+def registration_shift(rmse: float) -> float:
+    """The frame shift (scene units) that a feature registration of the states with inlier RMS
+    ``rmse`` (scene units: 3D distance of the features matched across the states) shows:
+    ``REGISTRATION_SHIFT_SHARE`` x rmse. The static misfit (:func:`frame_misfit`) reads
+    nearest-point distances, which a shift along a surface does not raise; matched features see
+    every component. O(1)."""
+    return REGISTRATION_SHIFT_SHARE * float(rmse)
+
+
+def depth_ratio_shift(largest: float, distance: float) -> float:
+    """The frame shift (scene units) of surfaces ``distance`` (scene units) from the camera whose
+    depth the two states disagree on by ``largest`` (the depth-ratio step's 95th percentile of
+    |ratio - 1| over the static scene): ``DEPTH_RATIO_SHIFT_SHARE`` x largest x distance. The ratio
+    step lays the end depth onto the start's, so the joint no longer sees the disagreement; what it
+    measured is how far each state's own depth may be off. O(1)."""
+    return DEPTH_RATIO_SHIFT_SHARE * float(largest) * float(distance)
