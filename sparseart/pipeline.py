@@ -17,6 +17,7 @@ from sparseart.align.static import align_on_static, polish_on_static
 from sparseart.clock import StageClock
 from sparseart.io.validate import validate_clouds
 from sparseart.joints.candidates import fit_parts
+from sparseart.joints.frame_shift import add_alignment_shift
 from sparseart.joints.fit import FitConfig
 from sparseart.labelers.base import PartLabeler, TooLittleToLabel
 from sparseart.labelers.rules import RuleBasedLabeler, RuleLabelerConfig
@@ -200,51 +201,6 @@ def _second_opinion(start: LabelledCloud, end: LabelledCloud, scene: Scene | Non
     apply_second_opinion(parts, labels, other_parts, other_labels, warnings)
 
 
-def _add_frame_shift(parts: list, registration: dict | None, start: LabelledCloud, labels: PartLabels,
-                     scene: Scene | None) -> None:
-    """Every joint's sigma widened by the shift of its frame that the alignment measured
-    (:func:`~sparseart.joints.uncertainty.add_frame_shift`): states aligned by features carry
-    their registration residual's share on the hinge line and the slide
-    (:func:`~sparseart.joints.uncertainty.registration_shift`); states in one frame from posed
-    cameras whose depth the ratio step compared carry the disagreement it found, times the part's
-    distance from its camera, on the origin (:func:`~sparseart.joints.uncertainty.depth_ratio_shift`;
-    a depth error moves both states alike there, so a slide's length keeps its sigma). Nothing
-    for clouds without a scene, nor for states never compared. O(N) for the part distances."""
-    from sparseart.joints.uncertainty import add_frame_shift, depth_ratio_shift, registration_shift
-
-    report = registration or {}
-    states = report.get("states", {})
-    if states.get("method") == "features" and states.get("trusted", False) and states.get("rmse") is not None:
-        for part in parts:
-            if part.joint is not None:
-                add_frame_shift(part.joint, registration_shift(float(states["rmse"])))
-        return
-    ratios = [float(r["largest"]) for r in report.get("depth_ratio", []) if r.get("largest") is not None]
-    centres = _camera_centres(scene)
-    if not ratios or centres is None:
-        return
-    largest = float(np.median(ratios))
-    for part in parts:
-        if part.joint is None:
-            continue
-        own = labels.start_part == part.spec.id
-        if not own.any():
-            continue
-        distance = float(np.median(np.linalg.norm(start.points[own] - centres[start.frame_index[own]], axis=1)))
-        add_frame_shift(part.joint, depth_ratio_shift(largest, distance), keys=("origin",))
-
-
-def _camera_centres(scene: Scene | None) -> np.ndarray | None:
-    """(F, 3) float64 scene-frame centres of the start cameras, or None unless every start frame is
-    posed. O(F)."""
-    if scene is None or not scene.start:
-        return None
-    poses = [frame.camera.cam_to_world if frame.camera is not None else None for frame in scene.start]
-    if any(pose is None for pose in poses):
-        return None
-    return np.array([np.asarray(pose, dtype=np.float64)[:3, 3] for pose in poses])
-
-
 def _options(options: RunOptions | None, overrides: dict) -> RunOptions:
     options = replace(options) if options is not None else RunOptions()
     for key, value in overrides.items():
@@ -373,7 +329,7 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
                      else "fitting revolute and prismatic, choosing by penalised residual"):
         parts = fit_parts(start, end, labels, joint_type=options.joint_type,
                           config=replace(options.fit or FitConfig(), seed=seed), warnings=warnings)
-        _add_frame_shift(parts, registration, start, labels, scene)
+        add_alignment_shift(parts, registration, start, labels, scene)
     if options.second_opinion and isinstance(labeler, RuleBasedLabeler) and _labelled_by_motion(labels):
         with clock.stage("second_opinion", "no masks: labelled and fitted again with another seed"):
             _second_opinion(start, end, scene, labels, parts, labeler, hints, options, warnings, posed=known_frame)

@@ -243,6 +243,12 @@ def test_tied_hinge_rivals_widen_the_hinge_line_and_angle_sigma():
     spread = tied_spread(chosen, [across, reversed_rival])
     assert spread["origin"] == pytest.approx(0.03) and spread["angle"] == pytest.approx(np.radians(2.0))
     assert spread["axis_deg"] == pytest.approx(0.0, abs=1e-6)
+    # the slab's mirror (turned the other way about the far edge) is a discrete alternative: its
+    # 0.57 and 180 deg stay out of the sigma, its axis counts
+    mirror = hinge(0.0101, [0, np.sin(np.radians(3.0)), -np.cos(np.radians(3.0))], [0.57, 0.0, 0.0], 90.0)
+    with_mirror = tied_spread(chosen, [across, reversed_rival, mirror])
+    assert with_mirror["origin"] == pytest.approx(0.03) and with_mirror["angle"] == pytest.approx(np.radians(2.0))
+    assert with_mirror["axis_deg"] == pytest.approx(3.0)
     warnings_before = len(chosen.warnings)
     widen_for_tied_hinges(chosen, spread)
     assert chosen.uncertainty["origin"] == pytest.approx(0.03)

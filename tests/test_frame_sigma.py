@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from sparseart.joints.uncertainty import (DEPTH_RATIO_SHIFT_SHARE, REGISTRATION_SHIFT_SHARE, add_frame_shift, add_frame_sigma,
-                                         depth_ratio_shift, frame_misfit, registration_shift)
+from sparseart.joints.frame_shift import (DEPTH_RATIO_SHIFT_SHARE, REGISTRATION_SHIFT_SHARE, add_frame_shift,
+                                          depth_ratio_shift, registration_shift)
+from sparseart.joints.uncertainty import add_frame_sigma, frame_misfit
 from sparseart.types import JointEstimate
 
 
@@ -145,7 +146,7 @@ def test_the_pipeline_reads_the_shift_off_what_the_alignment_measured():
     States in one frame from posed cameras: the depth-ratio disagreement x the part's distance from
     its camera, on the origins only (both states' depth moved alike, a slide's length keeps its
     sigma). Nothing for a still camera without poses, an untrusted alignment, or no report."""
-    from sparseart.pipeline import _add_frame_shift
+    from sparseart.joints.frame_shift import add_alignment_shift
     from sparseart.types import Camera, Frame, LabelledCloud, PartLabels, PartResult, PartSpec, Scene
 
     points = np.array([[0.0, 0.0, 3.0], [0.1, 0.0, 3.0], [0.0, 0.1, 3.0]])
@@ -170,14 +171,14 @@ def test_the_pipeline_reads_the_shift_off_what_the_alignment_measured():
                                 ({"depth_ratio": [{"largest": 0.02}]}, unposed),
                                 ({"depth_ratio": [{"largest": 0.02}]}, None)):
         kept = parts()
-        _add_frame_shift(kept, registration, start, labels, scene)
+        add_alignment_shift(kept, registration, start, labels, scene)
         assert kept[0].joint.uncertainty["origin"] == 0.004 and kept[1].joint.uncertainty["distance"] == 0.005
     featured = parts()
-    _add_frame_shift(featured, {"states": {"method": "features", "trusted": True, "rmse": 0.05}}, start, labels, None)
+    add_alignment_shift(featured, {"states": {"method": "features", "trusted": True, "rmse": 0.05}}, start, labels, None)
     assert featured[0].joint.diagnostics["frame_shift"] == pytest.approx(registration_shift(0.05))
     assert featured[1].joint.uncertainty["distance"] > 0.005
     ratio = parts()
-    _add_frame_shift(ratio, {"states": {"method": "cameras"}, "depth_ratio": [{"largest": 0.02}]}, start, labels, posed)
+    add_alignment_shift(ratio, {"states": {"method": "cameras"}, "depth_ratio": [{"largest": 0.02}]}, start, labels, posed)
     distance = float(np.median(np.linalg.norm(points[:2], axis=1)))
     assert ratio[0].joint.diagnostics["frame_shift"] == pytest.approx(depth_ratio_shift(0.02, distance))
     assert ratio[1].joint.uncertainty["distance"] == 0.005 and ratio[1].joint.uncertainty["origin"] > 0.004

@@ -20,7 +20,7 @@ from sparseart.joints.clean import estimate_normals
 from sparseart.joints.fit import FitConfig, fit_joint
 from sparseart.joints.reliability import HALF_TURN_DEG, MAX_AXIS_SIGMA_DEG
 from sparseart.joints.siblings import slides_like_siblings
-from sparseart.joints.uncertainty import frame_misfit
+from sparseart.joints.uncertainty import frame_misfit, joint_gap, raise_sigma
 from sparseart.types import JointEstimate, LabelledCloud, PartLabels, PartResult
 
 MIN_PART_POINTS = 20
@@ -760,19 +760,23 @@ def choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
 
 
 def tied_spread(chosen: JointEstimate, rivals: list[JointEstimate]) -> dict[str, float]:
-    """How far the revolute ``rivals`` lie from ``chosen``, each the widest over them: "axis_deg"
-    (deg), "origin" (a rival's origin's distance from the chosen axis line, input units) and
-    "angle" (rad; a rival given the other way round read along the chosen axis). O(len(rivals))."""
-    axis = np.asarray(chosen.axis, dtype=np.float64)
+    """The widest :func:`~sparseart.joints.uncertainty.joint_gap` of the revolute ``rivals`` from
+    ``chosen``, per key ("axis_deg" deg, "origin" input units, "angle" rad), over the rivals that
+    turn the same way: a rival whose angle read along the chosen axis differs by more than 90 deg
+    is the slab's mirror (a lid turned about its far edge the other way, 0.57 away on a clean
+    laptop), a discrete alternative that no sigma describes; it widens the axis alone, as before.
+    O(len(rivals))."""
     spread = {"axis_deg": 0.0, "origin": 0.0, "angle": 0.0}
     for rival in rivals:
-        offset = np.asarray(rival.origin, dtype=np.float64) - np.asarray(chosen.origin, dtype=np.float64)
-        sign = 1.0 if float(axis @ rival.axis) >= 0 else -1.0
-        spread["axis_deg"] = max(spread["axis_deg"], axis_angle_deg(rival.axis, axis))
-        spread["origin"] = max(spread["origin"], float(np.linalg.norm(offset - (offset @ axis) * axis)))
-        if chosen.angle is not None and rival.angle is not None:
-            spread["angle"] = max(spread["angle"], abs(float(chosen.angle) - sign * float(rival.angle)))
+        gap = joint_gap(chosen, rival)
+        if gap.get("angle", 0.0) > MIRROR_TURN_GAP:
+            gap = {"axis_deg": gap["axis_deg"]}
+        for key, value in gap.items():
+            spread[key] = max(spread.get(key, 0.0), value)
     return spread
+
+
+MIRROR_TURN_GAP = np.pi / 2   # rad: a tied rival this far off in angle turns the other way (the slab's mirror)
 
 
 TIED_GAP_RATIO = 1.25   # a rival hinge axis this close to the static part (x the chosen one's distance) is a tie
@@ -799,9 +803,7 @@ def widen_for_tied_hinges(chosen: JointEstimate, tied: dict[str, float] | None) 
     if not tied or chosen.type != "revolute":
         return
     widened_axis = tied["axis_deg"] > float(chosen.uncertainty.get("axis_deg", 0.0))
-    for key, value in tied.items():
-        if key in chosen.uncertainty:
-            chosen.uncertainty[key] = max(float(chosen.uncertainty[key]), float(value))
+    raise_sigma(chosen, tied)
     if widened_axis:
         chosen.warnings.append(f"a rival hinge axis {tied['axis_deg']:.1f} deg away fits as well and lies as near "
                                f"the static part: the axis is ambiguous (a rod-like or symmetric part?); axis "

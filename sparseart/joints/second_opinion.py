@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from sparseart.geometry.transforms import axis_angle_deg
+from sparseart.joints.uncertainty import joint_gap, raise_sigma
 from sparseart.types import JointEstimate, PartLabels, PartResult
 
 UNSTABLE_DEG = 15.0   # axes of the two runs further apart than this: the labelling is unstable
@@ -90,17 +91,6 @@ def add_labelling_spread(joint: JointEstimate, other: JointEstimate) -> None:
     distance from this axis line, input units), and for the angle (rad) or slide (input units; the
     counterpart's read along this axis). Records the spreads in
     ``joint.diagnostics["labelling_spread"]``. O(1)."""
-    axis = np.asarray(joint.axis, dtype=np.float64)
-    sign = 1.0 if float(axis @ other.axis) >= 0 else -1.0
-    spread = {"axis_deg": axis_angle_deg(axis, other.axis) / np.sqrt(2.0)}
-    if joint.type == "revolute":
-        offset = np.asarray(other.origin, dtype=np.float64) - np.asarray(joint.origin, dtype=np.float64)
-        spread["origin"] = float(np.linalg.norm(offset - (offset @ axis) * axis)) / np.sqrt(2.0)
-        if joint.angle is not None and other.angle is not None:
-            spread["angle"] = abs(float(joint.angle) - sign * float(other.angle)) / np.sqrt(2.0)
-    elif joint.distance is not None and other.distance is not None:
-        spread["distance"] = abs(float(joint.distance) - sign * float(other.distance)) / np.sqrt(2.0)
-    for key, value in spread.items():
-        if key in joint.uncertainty:
-            joint.uncertainty[key] = max(float(joint.uncertainty[key]), float(value))
+    spread = {key: value / np.sqrt(2.0) for key, value in joint_gap(joint, other).items()}
+    raise_sigma(joint, spread)
     joint.diagnostics["labelling_spread"] = {key: float(value) for key, value in spread.items()}

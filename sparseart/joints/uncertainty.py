@@ -34,15 +34,15 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from sparseart.geometry.clouds import median_spacing, rms_radius
+from sparseart.geometry.transforms import axis_angle_deg
 from sparseart.joints.config import UNCERTAINTY_FLOOR
 from sparseart.joints.optimise import ModelFit, Problem, one_to_one_pairs, pair_weights
 from sparseart.joints.part import MIN_POINTS, Sample
+from sparseart.types import JointEstimate
 
-__all__ = ["DEPTH_RATIO_SHIFT_SHARE", "REGISTRATION_SHIFT_SHARE", "UNCERTAINTY_FLOOR", "add_frame_shift", "add_frame_sigma",
-           "depth_ratio_shift", "axis_sigma_deg", "block_jackknife_covariance", "floor_covariance",
-           "frame_misfit", "frame_turn",
-           "half_sample_covariance", "prismatic_sigma", "registration_shift", "resample_covariance", "revolute_sigma",
-           "spatial_blocks"]
+__all__ = ["UNCERTAINTY_FLOOR", "add_frame_sigma", "axis_sigma_deg", "block_jackknife_covariance", "floor_covariance",
+           "frame_misfit", "frame_turn", "half_sample_covariance", "joint_gap", "prismatic_sigma", "raise_sigma",
+           "resample_covariance", "revolute_sigma", "spatial_blocks"]
 
 
 def spatial_blocks(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
@@ -259,56 +259,28 @@ def add_frame_sigma(uncertainty: dict[str, float], misfit: float, radius: float,
     return out
 
 
-# Share of the states' feature registration residual (RMS, scene units) by which a joint's frame is
-# shifted, 1 sigma. Measured on the realistic renders (16 objects, seeds 0-1: 22 hinges and 16
-# slides within 10 deg; the seeds 2-3 and realistic-1view held out): the hinge lines lay 0.002-0.045
-# off, 0.03-1.05 x the residual (0.044-0.087: ~2 % of the distance from the camera), where the frame
-# misfit of the static points had stated 0.004-0.028 -- smallest exactly where the polish had slid
-# the states along a flat valley of the static surfaces.
-REGISTRATION_SHIFT_SHARE = 0.35
+def joint_gap(joint: JointEstimate, other: JointEstimate) -> dict[str, float]:
+    """How far ``other`` (another estimate of the same joint: a rival fit, a second labelling's)
+    lies from ``joint``, in the units of ``joint.uncertainty``: "axis_deg" (deg); for a revolute
+    joint "origin" (the other origin's distance from this axis line, input units) and "angle"
+    (rad); for a prismatic one "distance" (input units). The other's state is read along this
+    axis (an axis given the other way round negates it); a state either lacks is left out. O(1)."""
+    axis = np.asarray(joint.axis, dtype=np.float64)
+    sign = 1.0 if float(axis @ np.asarray(other.axis, dtype=np.float64)) >= 0 else -1.0
+    gap = {"axis_deg": axis_angle_deg(axis, other.axis)}
+    if joint.type == "revolute":
+        offset = np.asarray(other.origin, dtype=np.float64) - np.asarray(joint.origin, dtype=np.float64)
+        gap["origin"] = float(np.linalg.norm(offset - (offset @ axis) * axis))
+        if joint.angle is not None and other.angle is not None:
+            gap["angle"] = abs(float(joint.angle) - sign * float(other.angle))
+    elif joint.distance is not None and other.distance is not None:
+        gap["distance"] = abs(float(joint.distance) - sign * float(other.distance))
+    return gap
 
-# Share of "how far the two states' depths disagree" (the depth-ratio step's 95th percentile of
-# |z_end / z_start - 1| over the static scene, same camera) x the distance from the camera that a
-# hinge line placed from that depth moves, 1 sigma. Measured on robot-1view (one posed view per
-# state, reconstructor-grade depth; seeds 0-1, 20 hinges within 10 deg; seeds 2-3 and
-# robot-sensor-1view held out): hinges 0.1-4.4 x largest x distance off (largest 1.2-2.3 %, camera
-# 2.5-3.7 away), at a stated sigma that covered 40 % / 60 %.
-DEPTH_RATIO_SHIFT_SHARE = 1.0
 
-
-def add_frame_shift(joint, shift: float, keys: tuple[str, ...] = ("origin", "distance")) -> None:
-    """Widen a joint's stated sigma (in place) by a shift of its whole frame: ``shift`` (scene
-    units, 1 sigma) joins each of ``keys`` the joint states ("origin": a revolute hinge line;
-    "distance": a slide) in quadrature; the axis and a revolute angle are left alone.
-
-    Why: a reconstructor's or sensor's depth errors are mostly along the camera ray (a per-view
-    scale, a smooth warp of ~2 %), so they move whole surfaces -- the part, the body, the hinge line
-    placed from them -- by ~2 % of their distance from the camera, and turn them little. The fit
-    sees none of it: the points it lays onto each other are shifted alike. Callers read the shift
-    off what the alignment measured (:func:`registration_shift`, :func:`depth_ratio_shift`).
-    Records ``joint.diagnostics["frame_shift"]`` (scene units). No-op for a shift <= 0 or
-    non-finite. O(1)."""
-    if not (np.isfinite(shift) and shift > 0):
-        return
-    for key in keys:
+def raise_sigma(joint: JointEstimate, floors: dict[str, float]) -> None:
+    """Raise each of ``joint.uncertainty``'s entries (in place) to at least its value in ``floors``
+    (same keys and units); keys the joint does not state are ignored. O(len(floors))."""
+    for key, value in floors.items():
         if key in joint.uncertainty:
-            joint.uncertainty[key] = float(np.hypot(float(joint.uncertainty[key]), shift))
-    joint.diagnostics["frame_shift"] = float(shift)
-
-
-def registration_shift(rmse: float) -> float:
-    """The frame shift (scene units) that a feature registration of the states with inlier RMS
-    ``rmse`` (scene units: 3D distance of the features matched across the states) shows:
-    ``REGISTRATION_SHIFT_SHARE`` x rmse. The static misfit (:func:`frame_misfit`) reads
-    nearest-point distances, which a shift along a surface does not raise; matched features see
-    every component. O(1)."""
-    return REGISTRATION_SHIFT_SHARE * float(rmse)
-
-
-def depth_ratio_shift(largest: float, distance: float) -> float:
-    """The frame shift (scene units) of surfaces ``distance`` (scene units) from the camera whose
-    depth the two states disagree on by ``largest`` (the depth-ratio step's 95th percentile of
-    |ratio - 1| over the static scene): ``DEPTH_RATIO_SHIFT_SHARE`` x largest x distance. The ratio
-    step lays the end depth onto the start's, so the joint no longer sees the disagreement; what it
-    measured is how far each state's own depth may be off. O(1)."""
-    return DEPTH_RATIO_SHIFT_SHARE * float(largest) * float(distance)
+            joint.uncertainty[key] = max(float(joint.uncertainty[key]), float(value))
