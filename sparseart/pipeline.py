@@ -201,6 +201,16 @@ def _second_opinion(start: LabelledCloud, end: LabelledCloud, scene: Scene | Non
     apply_second_opinion(parts, labels, other_parts, other_labels, warnings)
 
 
+def _rough_depth(registration: dict | None) -> bool:
+    """Whether the alignment stage measured the depth as rough (a sensor's or reconstructor's:
+    ``depth_noise`` above :data:`~sparseart.align.noise.MAX_CLEAN_ROUGHNESS`). False when it was
+    not measured (posed cameras, a reconstructor's joint frame)."""
+    from sparseart.align.noise import MAX_CLEAN_ROUGHNESS
+
+    noise = (registration or {}).get("depth_noise")
+    return noise is not None and float(noise) > MAX_CLEAN_ROUGHNESS
+
+
 def _options(options: RunOptions | None, overrides: dict) -> RunOptions:
     options = replace(options) if options is not None else RunOptions()
     for key, value in overrides.items():
@@ -322,7 +332,8 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
         labels = _label(labeler, start, end, scene, aligned=True, motion_hints=hints, posed=known_frame)
     if alignment in ("features", "model"):
         with clock.stage("align.static", f"static part: ICP polish of the {alignment} alignment"):
-            end, labels = polish_on_static(start, end, labels, warnings, seed=seed)
+            end, labels = polish_on_static(start, end, labels, warnings, seed=seed,
+                                           rough_depth=_rough_depth(registration))
     warnings.extend(labels.warnings)
     known_type = options.joint_type != "auto" or all(p.joint_type for p in labels.movable)
     with clock.stage("fit", "joint type given: classification skipped" if known_type

@@ -458,6 +458,38 @@ def test_the_static_polish_does_not_depend_on_the_seed_below_its_point_budget():
     assert np.array_equal(polished[0], polished[1]) and np.array_equal(polished[0], polished[2])
 
 
+def test_on_rough_depth_the_static_polish_keeps_the_feature_translation():
+    """rough_depth: the polish turns the end state about its static centroid and leaves that
+    centroid where the feature alignment put it (warped surfaces steer ICP's translation along
+    flat valleys); clean depth takes the whole ICP transform. A box-like body, the end state
+    turned 2 deg and 1.5 cm off."""
+    from scipy.spatial.transform import Rotation
+
+    from sparseart.align.static import polish_on_static
+    from sparseart.types import LabelledCloud, PartLabels, PartSpec
+
+    rng = np.random.default_rng(5)
+    body = rng.uniform(-0.5, 0.5, (5000, 3)) * [1.0, 0.8, 0.6]
+    face = rng.integers(0, 3, 5000)
+    body[np.arange(5000), face] = np.sign(rng.uniform(-1, 1, 5000)) * np.array([0.5, 0.4, 0.3])[face]
+    turn = Rotation.from_rotvec(np.radians(2.0) * np.array([0.3, 1.0, -0.2]) / np.linalg.norm([0.3, 1.0, -0.2]))
+    end_points = turn.apply(body) + [0.015, 0.0, 0.0]
+
+    def cloud(points: np.ndarray, state: str) -> LabelledCloud:
+        n = len(points)
+        return LabelledCloud(state=state, points=points, colors=np.zeros((n, 3)), segment=np.zeros(n, dtype=np.int64),
+                             frame_index=np.zeros(n, dtype=np.int64), pixel_index=np.arange(n), confidence=np.ones(n))
+
+    start, end = cloud(body, "start"), cloud(end_points, "end")
+    labels = PartLabels(parts=[PartSpec(id=0, role="static")], start_part=np.zeros(5000, dtype=np.int64),
+                        end_part=np.zeros(5000, dtype=np.int64))
+    rough, _ = polish_on_static(start, end, labels, [], seed=0, rough_depth=True)
+    clean, _ = polish_on_static(start, end, labels, [], seed=0, rough_depth=False)
+    np.testing.assert_allclose(rough.points.mean(0), end_points.mean(0), atol=1e-9)   # translation kept
+    assert np.abs(rough.points - (body + [0.015, 0.0, 0.0])).max() < 2e-3               # turn taken out
+    assert np.abs(clean.points - body).max() < 2e-3                                     # both taken out
+
+
 @requires_partnet
 def test_noisy_depth_views_of_a_plain_fridge_are_placed_by_geometry(tmp_path):
     """A plain white fridge on a table (realistic render: warped, noisy, holed depth, seed 2): two

@@ -194,7 +194,7 @@ def _polished(result: RigidRegistration, source: np.ndarray, target: np.ndarray,
     6000 10.1 and 9.8 s with the same joints (every candidate edge is polished). Clean depth
     only: on the realistic renders (noisy, warped depth) it moved 12 of 84 joints both ways (one
     success lost, the slowest scene's registration 8 -> 19 s), as the graph's polish once did
-    (``graph.POLISH_MAX_ROUGHNESS``). O((N + M) log(N + M))."""
+    (``noise.MAX_CLEAN_ROUGHNESS``). O((N + M) log(N + M))."""
     polished = icp_polish(source, target, result.transform, THRESHOLD_FRACTION * size, max_points=POLISH_MAX_POINTS)
     return result if polished is None else replace(result, transform=np.asarray(polished, dtype=np.float64))
 

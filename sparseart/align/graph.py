@@ -46,7 +46,7 @@ import numpy as np
 from sparseart.align.features import PLANAR_FRACTION, THRESHOLD_FRACTION, FeatureMatches, match_view_features, view_features
 from sparseart.align.geometric import (MAX_FREE_SPACE_VIOLATION, NOISY_MAX_FREE_SPACE_VIOLATION, GeometricEdges,
                                        view_mask_ids)
-from sparseart.align.noise import RHO_MAX, depth_roughness, estimate_rho, thresholds
+from sparseart.align.noise import MAX_CLEAN_ROUGHNESS, RHO_MAX, depth_roughness, estimate_rho, thresholds
 from sparseart.align.ransac import DEGENERATE_FRACTION, AlignmentError, Similarity, ransac_similarity, umeyama
 from sparseart.geometry.clouds import scene_size, spread, valid_points
 from sparseart.geometry.icp import icp_polish
@@ -70,9 +70,6 @@ MIN_OBJECT_AGREEMENT = 0.2   # views of one state, with masks: share of object p
 MIN_WITHIN_SHARE = 0.30      # views of one state without masks: share of their matches the transform explains
 UNIQUE_RATIO = 1.8           # views of one state: support over the best different plausible transform
 HYPOTHESES = 6               # sequential fits tried per merge
-POLISH_MAX_ROUGHNESS = 0.002  # ICP polish only for depth this clean (per-pixel noise / distance, median view;
-                              # raycasts ~1e-4, the realistic renders 5e-3): on noisy, warped depth ICP trades
-                              # one view's warp against another's and made the poses worse (1-2 deg)
 SCALE_PRIOR = 0.02           # sigma of the per-view log depth scale (metric depth) ...
 SCALE_LIMIT = 0.05           # ... and its bound (realistic reconstructors: ~1 % scale + ~2 % warp)
 SCALE_REPORTED = 0.003       # |scale - 1| below this is reported as 1 (metric depth)
@@ -796,7 +793,7 @@ def _finish(ctx: _Context, comps: _Components, reasons: dict[int, list[str]], se
     registered: set[int] = set()
     # Per-view depth scale: free for relative depth; for metric depth only when the depth is noisy
     # (a reconstructor or sensor, whose scale is off by ~1 %); exact depth keeps its scale.
-    scale_mode = "free" if ctx.relative else ("prior" if ctx.roughness > POLISH_MAX_ROUGHNESS else "fixed")
+    scale_mode = "free" if ctx.relative else ("prior" if ctx.roughness > MAX_CLEAN_ROUGHNESS else "fixed")
     for c in groups:
         views = sorted(comps.members(c))
         anchor = views[0]
@@ -820,7 +817,7 @@ def _finish(ctx: _Context, comps: _Components, reasons: dict[int, list[str]], se
     lap("solve")
     if not ctx.relative and ctx.geometry_fallback and all(f.camera is not None for f in frames):
         _geometry(frames, ctx.maps, ctx.clouds, poses, registered, info, n_start, ctx.size, ctx.seed, reasons,
-                  warnings, noisy=ctx.roughness > POLISH_MAX_ROUGHNESS)
+                  warnings, noisy=ctx.roughness > MAX_CLEAN_ROUGHNESS)
     lap("geometry")
     for v in range(n):
         if v not in registered:
@@ -828,7 +825,7 @@ def _finish(ctx: _Context, comps: _Components, reasons: dict[int, list[str]], se
             info[v].reason = why[:400]
             warnings.append(f"{frames[v].image}: view could not be registered to the other views "
                             f"({why[:400]}); it is left out")
-    if ctx.polish and not ctx.relative and not ctx.roughness > POLISH_MAX_ROUGHNESS:
+    if ctx.polish and not ctx.relative and not ctx.roughness > MAX_CLEAN_ROUGHNESS:
         _polish(frames, ctx.clouds, poses, registered, info, n_start, ctx.size, warnings)
     lap("polish")
     candidates: list = []
@@ -886,7 +883,7 @@ def _geometry(frames, maps, clouds, poses, registered, info, n_start, size, seed
     after round (a view placed by geometry can reach the views tried before it); the mask ids'
     search (:class:`~sparseart.align.geometric.GeometricEdges`) only when no plain fit places any
     view, and then plain fits again from what it placed. ``noisy`` (depth rougher than
-    ``POLISH_MAX_ROUGHNESS``): plain fits may see through ``NOISY_MAX_FREE_SPACE_VIOLATION`` and
+    ``MAX_CLEAN_ROUGHNESS``): plain fits may see through ``NOISY_MAX_FREE_SPACE_VIOLATION`` and
     are not polished at full resolution."""
     if len(registered) == len(frames):
         return
