@@ -490,6 +490,35 @@ def test_on_rough_depth_the_static_polish_keeps_the_feature_translation():
     assert np.abs(clean.points - body).max() < 2e-3                                     # both taken out
 
 
+def _box_surface(rng: np.random.Generator, n: int, half: np.ndarray) -> np.ndarray:
+    """(n, 3) points on the surface of an axis-aligned box of half-extents ``half`` (3,)."""
+    points = rng.uniform(-1, 1, (n, 3)) * half
+    face = rng.integers(0, 3, n)
+    points[np.arange(n), face] = np.sign(rng.uniform(-1, 1, n)) * half[face]
+    return points
+
+
+def test_the_rough_depth_polish_leaves_turns_the_static_part_does_not_constrain():
+    """A static part seen as a long narrow bar (a stapler's base under its arm) does not constrain
+    a turn about its length: the polish's turn there is dropped, a turn across it is kept. A box
+    constrains every turn: all of it is kept."""
+    from scipy.spatial.transform import Rotation
+
+    from sparseart.align.static import constrained_rotation
+    from sparseart.geometry.transforms import make_transform
+
+    rng = np.random.default_rng(2)
+    bar = _box_surface(rng, 6000, np.array([0.5, 0.03, 0.02]))
+    box = _box_surface(rng, 6000, np.array([0.5, 0.4, 0.3]))
+    turn = Rotation.from_rotvec(np.radians([5.0, 0.0, 0.0])) * Rotation.from_rotvec(np.radians([0.0, 1.0, 0.0]))
+    transform = make_transform(turn.as_matrix(), np.zeros(3))
+
+    kept_on_bar = Rotation.from_matrix(constrained_rotation(transform, bar, bar)[:3, :3]).as_rotvec()
+    np.testing.assert_allclose(np.degrees(kept_on_bar), [0.0, 1.0, 0.0], atol=0.1)
+    kept_on_box = Rotation.from_matrix(constrained_rotation(transform, box, box)[:3, :3])
+    assert np.degrees((kept_on_box * turn.inv()).magnitude()) < 1e-6
+
+
 @requires_partnet
 def test_noisy_depth_views_of_a_plain_fridge_are_placed_by_geometry(tmp_path):
     """A plain white fridge on a table (realistic render: warped, noisy, holed depth, seed 2): two
