@@ -395,6 +395,28 @@ def test_depth_roughness_separates_exact_from_noisy_depth():
     assert 0.003 < depth_roughness(noisy) < 0.008
 
 
+def _box_surface(rng: np.random.Generator, n: int, half: np.ndarray) -> np.ndarray:
+    """(n, 3) points on the surface of an axis-aligned box of half-extents ``half`` (3,)."""
+    points = rng.uniform(-1, 1, (n, 3)) * half
+    face = rng.integers(0, 3, n)
+    points[np.arange(n), face] = np.sign(rng.uniform(-1, 1, n)) * half[face]
+    return points
+
+
+def _static_only(start_points: np.ndarray, end_points: np.ndarray):
+    """(start, end, labels): two LabelledClouds whose every point is labelled static (part 0)."""
+    from sparseart.types import LabelledCloud, PartLabels, PartSpec
+
+    def cloud(points: np.ndarray, state: str) -> LabelledCloud:
+        n = len(points)
+        return LabelledCloud(state=state, points=points, colors=np.zeros((n, 3)), segment=np.zeros(n, dtype=np.int64),
+                             frame_index=np.zeros(n, dtype=np.int64), pixel_index=np.arange(n), confidence=np.ones(n))
+
+    labels = PartLabels(parts=[PartSpec(id=0, role="static")], start_part=np.zeros(len(start_points), dtype=np.int64),
+                        end_part=np.zeros(len(end_points), dtype=np.int64))
+    return cloud(start_points, "start"), cloud(end_points, "end"), labels
+
+
 def test_the_static_polish_runs_from_the_state_that_shows_less_of_the_static_part():
     """A stapler-like base: fully seen in one state, only its front end and a thin side strip in
     the other (the closed arm covers the rest). ICP of the full base onto the strip turns it by
@@ -402,7 +424,6 @@ def test_the_static_polish_runs_from_the_state_that_shows_less_of_the_static_par
     whichever state shows less."""
     from sparseart.align.static import polish_on_static
     from sparseart.geometry.transforms import rotation_angle
-    from sparseart.types import LabelledCloud, PartLabels, PartSpec
 
     rng = np.random.default_rng(0)
 
@@ -412,15 +433,8 @@ def test_the_static_polish_runs_from_the_state_that_shows_less_of_the_static_par
     full = plate(5000, 1.0, 0.25)
     partial = np.concatenate([plate(700, 0.15, 0.25), plate(800, 1.0, 0.03, x0=0.15)]) + rng.normal(0, 0.003, (1500, 3))
 
-    def cloud(points: np.ndarray, state: str) -> LabelledCloud:
-        n = len(points)
-        return LabelledCloud(state=state, points=points, colors=np.zeros((n, 3)), segment=np.zeros(n, dtype=np.int64),
-                             frame_index=np.zeros(n, dtype=np.int64), pixel_index=np.arange(n), confidence=np.ones(n))
-
     for start_points, end_points in ((partial, full), (full, partial)):
-        start, end = cloud(start_points, "start"), cloud(end_points, "end")
-        labels = PartLabels(parts=[PartSpec(id=0, role="static")], start_part=np.zeros(len(start), dtype=np.int64),
-                            end_part=np.zeros(len(end), dtype=np.int64))
+        start, end, labels = _static_only(start_points, end_points)
         polished, _ = polish_on_static(start, end, labels, [], seed=0)
         # the polish is rigid: read its turn off the moved end points
         moved, before = polished.points - polished.points.mean(0), end.points - end.points.mean(0)
@@ -436,23 +450,13 @@ def test_the_static_polish_does_not_depend_on_the_seed_below_its_point_budget():
     from scipy.spatial.transform import Rotation
 
     from sparseart.align.static import polish_on_static
-    from sparseart.types import LabelledCloud, PartLabels, PartSpec
 
     rng = np.random.default_rng(3)
-    body = rng.uniform(-0.5, 0.5, (6000, 3)) * [1.0, 0.8, 0.6]
-    face = rng.integers(0, 3, 6000)
-    body[np.arange(6000), face] = np.sign(rng.uniform(-1, 1, 6000)) * np.array([0.5, 0.4, 0.3])[face]
+    body = _box_surface(rng, 6000, np.array([0.5, 0.4, 0.3]))
     turn = Rotation.from_rotvec(np.radians(1.0) * np.array([0.2, 1.0, 0.1]) / np.linalg.norm([0.2, 1.0, 0.1]))
     end_points = turn.apply(body + rng.normal(0, 0.002, body.shape)) + [0.01, 0.0, -0.005]
 
-    def cloud(points: np.ndarray, state: str) -> LabelledCloud:
-        n = len(points)
-        return LabelledCloud(state=state, points=points, colors=np.zeros((n, 3)), segment=np.zeros(n, dtype=np.int64),
-                             frame_index=np.zeros(n, dtype=np.int64), pixel_index=np.arange(n), confidence=np.ones(n))
-
-    start, end = cloud(body, "start"), cloud(end_points, "end")
-    labels = PartLabels(parts=[PartSpec(id=0, role="static")], start_part=np.zeros(6000, dtype=np.int64),
-                        end_part=np.zeros(6000, dtype=np.int64))
+    start, end, labels = _static_only(body, end_points)
     polished = [polish_on_static(start, end, labels, [], seed=seed)[0].points for seed in (0, 1, 2)]
     assert np.abs(polished[0] - body).max() < 0.02                     # the offset is taken out
     assert np.array_equal(polished[0], polished[1]) and np.array_equal(polished[0], polished[2])
@@ -466,36 +470,18 @@ def test_on_rough_depth_the_static_polish_keeps_the_feature_translation():
     from scipy.spatial.transform import Rotation
 
     from sparseart.align.static import polish_on_static
-    from sparseart.types import LabelledCloud, PartLabels, PartSpec
 
     rng = np.random.default_rng(5)
-    body = rng.uniform(-0.5, 0.5, (5000, 3)) * [1.0, 0.8, 0.6]
-    face = rng.integers(0, 3, 5000)
-    body[np.arange(5000), face] = np.sign(rng.uniform(-1, 1, 5000)) * np.array([0.5, 0.4, 0.3])[face]
+    body = _box_surface(rng, 5000, np.array([0.5, 0.4, 0.3]))
     turn = Rotation.from_rotvec(np.radians(2.0) * np.array([0.3, 1.0, -0.2]) / np.linalg.norm([0.3, 1.0, -0.2]))
     end_points = turn.apply(body) + [0.015, 0.0, 0.0]
 
-    def cloud(points: np.ndarray, state: str) -> LabelledCloud:
-        n = len(points)
-        return LabelledCloud(state=state, points=points, colors=np.zeros((n, 3)), segment=np.zeros(n, dtype=np.int64),
-                             frame_index=np.zeros(n, dtype=np.int64), pixel_index=np.arange(n), confidence=np.ones(n))
-
-    start, end = cloud(body, "start"), cloud(end_points, "end")
-    labels = PartLabels(parts=[PartSpec(id=0, role="static")], start_part=np.zeros(5000, dtype=np.int64),
-                        end_part=np.zeros(5000, dtype=np.int64))
+    start, end, labels = _static_only(body, end_points)
     rough, _ = polish_on_static(start, end, labels, [], seed=0, rough_depth=True)
     clean, _ = polish_on_static(start, end, labels, [], seed=0, rough_depth=False)
     np.testing.assert_allclose(rough.points.mean(0), end_points.mean(0), atol=1e-9)   # translation kept
     assert np.abs(rough.points - (body + [0.015, 0.0, 0.0])).max() < 2e-3               # turn taken out
     assert np.abs(clean.points - body).max() < 2e-3                                     # both taken out
-
-
-def _box_surface(rng: np.random.Generator, n: int, half: np.ndarray) -> np.ndarray:
-    """(n, 3) points on the surface of an axis-aligned box of half-extents ``half`` (3,)."""
-    points = rng.uniform(-1, 1, (n, 3)) * half
-    face = rng.integers(0, 3, n)
-    points[np.arange(n), face] = np.sign(rng.uniform(-1, 1, n)) * half[face]
-    return points
 
 
 def test_the_rough_depth_polish_leaves_turns_the_static_part_does_not_constrain():
