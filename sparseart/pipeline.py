@@ -186,19 +186,53 @@ def _labelled_by_motion(labels: PartLabels) -> bool:
     return bool(labels.diagnostics.get("motion_split", False))
 
 
-def _second_opinion(start: LabelledCloud, end: LabelledCloud, scene: Scene | None, labels: PartLabels,
-                    parts: list, labeler: RuleBasedLabeler, hints: list[np.ndarray], options: RunOptions,
-                    warnings: list[str], posed: bool | None) -> None:
-    """Label and fit the same clouds again with seed + 1 (its warnings discarded) and mark the
-    joints whose counterpart differs (:mod:`sparseart.joints.second_opinion`)."""
-    from sparseart.joints.second_opinion import apply_second_opinion
+class _SecondOpinion:
+    """The second opinion without masks (:mod:`sparseart.joints.second_opinion`): the same clouds
+    labelled and fitted again with seed + 1 (its warnings discarded), in a thread of its own
+    beside the first labelling and fit, then compared with them (:meth:`apply`).
 
-    seed = options.seed + 1
-    other = RuleBasedLabeler(replace(labeler.config, seed=seed))
-    other_labels = other.label(start, end, scene, aligned=True, motion_hints=hints, posed=posed)
-    other_parts = fit_parts(start, end, other_labels, joint_type=options.joint_type,
-                            config=replace(options.fit or FitConfig(), seed=seed), warnings=[])
-    apply_second_opinion(parts, labels, other_parts, other_labels, warnings)
+    Why a thread: it is a whole second labelling and fit, 48 % of the pipeline's time on the
+    robot-1view bench (175 of 364 s over 64 scenes). Both runs spend their time in numpy, k-d
+    trees and open3d, which release the GIL, and every open3d call is a pure function of its input
+    (:func:`sparseart.geometry.o3d.serial`, ``seeded``), so the answer is the same bit for bit as
+    one after the other; only the wall time changes. It starts before the first labelling when
+    the end cloud is final there (no polish follows: cameras, a still camera, or registered on the
+    static part), else right after the polish (beside the first fit)."""
+
+    def __init__(self, start: LabelledCloud, end: LabelledCloud, scene: Scene | None, labeler: RuleBasedLabeler,
+                 hints: list[np.ndarray], options: RunOptions, posed: bool | None) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        seed = options.seed + 1
+        other = RuleBasedLabeler(replace(labeler.config, seed=seed))
+        config = replace(options.fit or FitConfig(), seed=seed)
+
+        def label_and_fit():
+            labels = other.label(start, end, scene, aligned=True, motion_hints=hints, posed=posed)
+            return labels, fit_parts(start, end, labels, joint_type=options.joint_type, config=config, warnings=[])
+
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="second_opinion")
+        self._future = self._pool.submit(label_and_fit)
+
+    def apply(self, parts: list, labels: PartLabels, warnings: list[str]) -> None:
+        """Wait for the second labelling and mark the joints whose counterpart differs."""
+        from sparseart.joints.second_opinion import apply_second_opinion
+
+        other_labels, other_parts = self.result()
+        apply_second_opinion(parts, labels, other_parts, other_labels, warnings)
+
+    def result(self) -> tuple[PartLabels, list]:
+        """(labels, parts) of the second labelling (waits; raises what it raised)."""
+        try:
+            return self._future.result()
+        finally:
+            self._pool.shutdown(wait=True)
+
+
+def _splits_by_motion(start: LabelledCloud, end: LabelledCloud) -> bool:
+    """Will the rule labeler split these clouds by motion (no mask segment in one of the states)?
+    The labeler's own test (``labelers.rules``: masks only when both states have segments)."""
+    return not (np.any(start.segment >= 0) and np.any(end.segment >= 0))
 
 
 def _rough_depth(registration: dict | None) -> bool:
@@ -328,12 +362,18 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
     # that did not move gives a known frame as cameras do: a part that moved is kept even when no
     # static segment of the object is seen in both states (a laptop base hidden behind its open lid).
     known_frame = True if alignment in ("features", "still") else None
+    polished = alignment in ("features", "model")
+    wants_second = options.second_opinion and isinstance(labeler, RuleBasedLabeler)
+    second = (_SecondOpinion(start, end, scene, labeler, hints, options, known_frame)
+              if wants_second and not polished and _splits_by_motion(start, end) else None)
     with clock.stage("label", f"part labeler: {labeler.name}"):
         labels = _label(labeler, start, end, scene, aligned=True, motion_hints=hints, posed=known_frame)
-    if alignment in ("features", "model"):
+    if polished:
         with clock.stage("align.static", f"static part: ICP polish of the {alignment} alignment"):
             end, labels = polish_on_static(start, end, labels, warnings, seed=seed,
                                            rough_depth=_rough_depth(registration))
+    if second is None and wants_second and _labelled_by_motion(labels):
+        second = _SecondOpinion(start, end, scene, labeler, hints, options, known_frame)
     warnings.extend(labels.warnings)
     known_type = options.joint_type != "auto" or all(p.joint_type for p in labels.movable)
     with clock.stage("fit", "joint type given: classification skipped" if known_type
@@ -341,10 +381,13 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
         parts = fit_parts(start, end, labels, joint_type=options.joint_type,
                           config=replace(options.fit or FitConfig(), seed=seed), warnings=warnings)
         add_alignment_shift(parts, registration, start, labels, scene)
-    if options.second_opinion and isinstance(labeler, RuleBasedLabeler) and _labelled_by_motion(labels):
-        with clock.stage("second_opinion", "no masks: labelled and fitted again with another seed"):
-            _second_opinion(start, end, scene, labels, parts, labeler, hints, options, warnings, posed=known_frame)
+    if second is not None and _labelled_by_motion(labels):
+        with clock.stage("second_opinion", "no masks: labelled and fitted again with another seed, in a thread "
+                         "beside the first (the seconds here: the wait after the first fit)"):
+            second.apply(parts, labels, warnings)
     else:
+        if second is not None:
+            second.result()
         clock.skip("second_opinion", "labels from masks (or another labeler): no second labelling")
     if options.refine:
         from sparseart.refine.api import RefineOptions, refine_parts

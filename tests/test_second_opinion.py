@@ -103,3 +103,31 @@ def test_pipeline_runs_it_only_without_masks():
     assert stage.ran
     joint = next(p.joint for p in without.parts if p.joint is not None)
     assert joint.diagnostics["second_opinion"]["axis_deg"] is not None
+
+
+def test_the_second_opinion_beside_the_first_labelling_is_the_sequential_one():
+    """The second labelling runs in a thread beside the first (pipeline._SecondOpinion): the
+    joints come out exactly as a second labelling and fit done afterwards (seed + 1) make them."""
+    from tests.synthetic import make_clouds
+
+    import sparseart
+    from sparseart.joints.candidates import fit_parts
+    from sparseart.joints.fit import FitConfig
+    from sparseart.labelers.rules import RuleBasedLabeler, RuleLabelerConfig
+
+    start, end, _ = make_clouds("revolute", amount=np.radians(40))
+    start.segment[:] = -1
+    end.segment[:] = -1
+    threaded = sparseart.run_clouds(start, end)
+    plain = sparseart.run_clouds(start, end, second_opinion=False)
+    other_labels = RuleBasedLabeler(RuleLabelerConfig(seed=1)).label(plain.start_cloud, plain.end_cloud, None,
+                                                                     aligned=True, motion_hints=[], posed=None)
+    other_parts = fit_parts(plain.start_cloud, plain.end_cloud, other_labels, joint_type="auto",
+                            config=FitConfig(seed=1), warnings=[])
+    apply_second_opinion(plain.parts, plain.labels, other_parts, other_labels, [])
+    joints = [(p.joint, q.joint) for p, q in zip(threaded.parts, plain.parts) if p.joint is not None]
+    assert joints and len(threaded.parts) == len(plain.parts)
+    for a, b in joints:
+        assert np.array_equal(a.axis, b.axis) and np.array_equal(a.origin, b.origin)
+        assert a.uncertainty == b.uncertainty and a.confidence == b.confidence and a.warnings == b.warnings
+        assert a.diagnostics["second_opinion"] == b.diagnostics["second_opinion"]
