@@ -505,6 +505,26 @@ def test_the_rough_depth_polish_leaves_turns_the_static_part_does_not_constrain(
     assert np.degrees((kept_on_box * turn.inv()).magnitude()) < 1e-6
 
 
+def test_a_turn_the_static_part_does_not_fix_is_left_out_and_said(monkeypatch):
+    """On rough depth an ICP turn of 5 deg about a bar's length (which its surfaces barely
+    constrain) is not applied to the end state, and a warning says how much was left out."""
+    from scipy.spatial.transform import Rotation
+
+    import sparseart.align.static as static
+    from sparseart.geometry.icp import RigidRegistration
+    from sparseart.geometry.transforms import make_transform
+
+    bar = _box_surface(np.random.default_rng(4), 6000, np.array([0.5, 0.03, 0.02]))
+    turn = make_transform(Rotation.from_rotvec(np.radians([5.0, 0.0, 0.0])).as_matrix(), np.zeros(3))
+    monkeypatch.setattr(static, "_subset_onto_superset", lambda source, target, seed: RigidRegistration(
+        transform=turn, rmse=0.001, inlier_fraction=0.9, correspondences=np.zeros((0, 2), dtype=np.int64)))
+    start, end, labels = _static_only(bar, bar.copy())
+    warnings: list[str] = []
+    polished, _ = static.polish_on_static(start, end, labels, warnings, rough_depth=True)
+    assert np.abs(polished.points - bar).max() < 3e-4      # the 5 deg turn moved the bar's edges by 2.6e-3
+    assert any("5.0 deg of the polish's turn left as the feature alignment had it" in w for w in warnings)
+
+
 @requires_partnet
 def test_noisy_depth_views_of_a_plain_fridge_are_placed_by_geometry(tmp_path):
     """A plain white fridge on a table (realistic render: warped, noisy, holed depth, seed 2): two

@@ -64,6 +64,10 @@ def polish_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabel
     registration = _subset_onto_superset(pair[1], pair[0], seed)
     if rough_depth:
         constrained = constrained_rotation(registration.transform, pair[1], min(pair, key=len), seed)
+        dropped = float(np.degrees(rotation_angle(registration.transform[:3, :3].T @ constrained[:3, :3])))
+        if dropped > POLISH_WARN_DEG:
+            warnings.append(f"the static part does not fix every turn (a strip-like or flat base): {dropped:.1f} deg "
+                            f"of the polish's turn left as the feature alignment had it")
         registration = replace(registration, transform=rotation_only(constrained, pair[1]))
     angle = float(np.degrees(rotation_angle(registration.transform[:3, :3])))
     if registration.inlier_fraction < MIN_STATIC_AGREEMENT:
