@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sparseart.align.noise import MAX_CLEAN_ROUGHNESS
 from sparseart.align.static import align_on_static, polish_on_static
 from sparseart.clock import StageClock
 from sparseart.io.validate import validate_clouds
@@ -20,7 +21,7 @@ from sparseart.joints.candidates import fit_parts
 from sparseart.joints.frame_shift import add_alignment_shift
 from sparseart.joints.fit import FitConfig
 from sparseart.labelers.base import PartLabeler, TooLittleToLabel
-from sparseart.labelers.rules import RuleBasedLabeler, RuleLabelerConfig
+from sparseart.labelers.rules import RuleBasedLabeler, RuleLabelerConfig, has_masks
 from sparseart.lift.labels import build_labelled_cloud
 from sparseart.types import JOINT_TYPES, Articulation, LabelledCloud, PartLabels, Scene, SceneError
 
@@ -229,18 +230,10 @@ class _SecondOpinion:
             self._pool.shutdown(wait=True)
 
 
-def _splits_by_motion(start: LabelledCloud, end: LabelledCloud) -> bool:
-    """Will the rule labeler split these clouds by motion (no mask segment in one of the states)?
-    The labeler's own test (``labelers.rules``: masks only when both states have segments)."""
-    return not (np.any(start.segment >= 0) and np.any(end.segment >= 0))
-
-
 def _rough_depth(registration: dict | None) -> bool:
     """Whether the alignment stage measured the depth as rough (a sensor's or reconstructor's:
     ``depth_noise`` above :data:`~sparseart.align.noise.MAX_CLEAN_ROUGHNESS`). False when it was
     not measured (posed cameras, a reconstructor's joint frame)."""
-    from sparseart.align.noise import MAX_CLEAN_ROUGHNESS
-
     noise = (registration or {}).get("depth_noise")
     return noise is not None and float(noise) > MAX_CLEAN_ROUGHNESS
 
@@ -365,7 +358,7 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
     polished = alignment in ("features", "model")
     wants_second = options.second_opinion and isinstance(labeler, RuleBasedLabeler)
     second = (_SecondOpinion(start, end, scene, labeler, hints, options, known_frame)
-              if wants_second and not polished and _splits_by_motion(start, end) else None)
+              if wants_second and not polished and not has_masks(start, end) else None)
     with clock.stage("label", f"part labeler: {labeler.name}"):
         labels = _label(labeler, start, end, scene, aligned=True, motion_hints=hints, posed=known_frame)
     if polished:

@@ -27,7 +27,7 @@ QUARTILE_TO_SIGMA = 1.0 / 0.3187   # |x| of a zero-mean normal: lower quartile =
 # Depth this rough (per-pixel noise / distance, median view, :func:`depth_roughness`; raycasts ~1e-4,
 # the realistic renders 5e-3) is treated as a sensor's or reconstructor's: ICP over it trades one
 # surface's warp against another's. The view graph then skips its ICP polish (the poses got 1-2 deg
-# worse) and the static polish of the states keeps only its rotation (:mod:`sparseart.align.static`).
+# worse) and the static polish of the states keeps only its constrained turn (:mod:`sparseart.align.static`).
 MAX_CLEAN_ROUGHNESS = 0.002
 
 

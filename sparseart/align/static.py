@@ -25,7 +25,7 @@ from dataclasses import replace
 import numpy as np
 
 from sparseart.align.geometric import LABEL_AGREEMENT, id_agreement, upright_starts
-from sparseart.geometry.clouds import normals_with_variation, scene_size
+from sparseart.geometry.clouds import normals_with_variation, rms_radius, scene_size
 from sparseart.geometry.icp import register_rigid
 from sparseart.geometry.sampling import random_subset
 from sparseart.geometry.transforms import apply_transform, make_transform, rotation_angle
@@ -55,7 +55,8 @@ def polish_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabel
     points from identity; the end cloud moves by the result, and so do the labeler's start -> end
     motions (:func:`carried`). Returns (end cloud, labels), both unchanged when the polish is not
     kept. ``rough_depth`` (a sensor's or reconstructor's depth, :data:`~sparseart.align.noise.MAX_CLEAN_ROUGHNESS`):
-    keep the polish's rotation only (:func:`rotation_only`). O(I N log N) for I ICP iterations over
+    keep only the polish's turn, and of it only what the static surfaces constrain
+    (:func:`constrained_rotation`, :func:`turn_about_centroid`). O(I N log N) for I ICP iterations over
     N static points."""
     pair = _static_points(start, end, labels)
     if pair is None:
@@ -63,12 +64,13 @@ def polish_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabel
         return end, labels
     registration = _subset_onto_superset(pair[1], pair[0], seed)
     if rough_depth:
-        constrained = constrained_rotation(registration.transform, pair[1], min(pair, key=len), seed)
-        dropped = float(np.degrees(rotation_angle(registration.transform[:3, :3].T @ constrained[:3, :3])))
+        turn = registration.transform[:3, :3]
+        constrained = constrained_rotation(turn, min(pair, key=len), seed)
+        dropped = float(np.degrees(rotation_angle(turn.T @ constrained)))
         if dropped > POLISH_WARN_DEG:
             warnings.append(f"the static part does not fix every turn (a strip-like or flat base): {dropped:.1f} deg "
                             f"of the polish's turn left as the feature alignment had it")
-        registration = replace(registration, transform=rotation_only(constrained, pair[1]))
+        registration = replace(registration, transform=turn_about_centroid(constrained, pair[1]))
     angle = float(np.degrees(rotation_angle(registration.transform[:3, :3])))
     if registration.inlier_fraction < MIN_STATIC_AGREEMENT:
         warnings.append(f"alignment polish is weak: {registration.inlier_fraction:.0%} of the static points "
@@ -79,11 +81,10 @@ def polish_on_static(start: LabelledCloud, end: LabelledCloud, labels: PartLabel
     return moved(end, registration.transform), carried(labels, registration.transform)
 
 
-def constrained_rotation(transform: np.ndarray, moved: np.ndarray, surfaces: np.ndarray, seed: int = 0) -> np.ndarray:
-    """The (4, 4) ``transform`` (acting on ``moved``, (N, 3)) with the parts of its turn that the
-    static surfaces barely constrain taken out: its rotation vector projected onto the directions
-    whose point-to-plane information is at least ``WEAK_TURN_SHARE`` of the best-constrained one's,
-    applied about the centroid of ``moved`` (the translation is :func:`rotation_only`'s to set).
+def constrained_rotation(rotation: np.ndarray, surfaces: np.ndarray, seed: int = 0) -> np.ndarray:
+    """The (3, 3) ``rotation`` with the parts of its turn that the static surfaces barely constrain
+    taken out: its rotation vector projected onto the directions whose point-to-plane information
+    is at least ``WEAK_TURN_SHARE`` of the best-constrained one's.
 
     ``surfaces``: (M, 3) the static points the ICP ran from (the state that shows less of them:
     only they have counterparts). Information of a turn about unit direction u: the mean of
@@ -100,22 +101,18 @@ def constrained_rotation(transform: np.ndarray, moved: np.ndarray, surfaces: np.
 
     surfaces = np.asarray(surfaces, dtype=np.float64)
     surfaces = surfaces[random_subset(len(surfaces), POLISH_POINTS, np.random.default_rng(seed))]
-    centre = surfaces.mean(axis=0)
-    radius = max(float(np.sqrt(np.mean(np.sum((surfaces - centre) ** 2, axis=1)))), 1e-12)
     normals, _ = normals_with_variation(surfaces, TURN_NORMAL_NEIGHBOURS)
-    arms = np.cross((surfaces - centre) / radius, normals)
+    arms = np.cross((surfaces - surfaces.mean(axis=0)) / max(rms_radius(surfaces), 1e-12), normals)
     values, vectors = np.linalg.eigh(arms.T @ arms / len(arms))
     kept = vectors[:, values >= WEAK_TURN_SHARE * values.max()]
-    transform = np.asarray(transform, dtype=np.float64)
-    turn = kept @ (kept.T @ Rotation.from_matrix(transform[:3, :3]).as_rotvec())
-    rotation = Rotation.from_rotvec(turn).as_matrix()
-    pivot = np.asarray(moved, dtype=np.float64).mean(axis=0)
-    return make_transform(rotation, pivot - rotation @ pivot)
+    turn = kept @ (kept.T @ Rotation.from_matrix(np.asarray(rotation, dtype=np.float64)).as_rotvec())
+    return Rotation.from_rotvec(turn).as_matrix()
 
 
-def rotation_only(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """The (4, 4) ``transform``'s rotation about the centroid of ``points`` ((N, 3), the frame the
-    transform acts in): its translation dropped, the centroid left where it is.
+def turn_about_centroid(rotation: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """The (4, 4) transform that turns by ``rotation`` (3, 3) about the centroid of ``points``
+    ((N, 3), the frame it acts in): the centroid stays where it is. On rough depth it replaces the
+    polish: its turn (constrained, :func:`constrained_rotation`) without its translation.
 
     Why: on rough depth the static surfaces' smooth warps steer the polish's translation, while
     the feature alignment pins it through matched pixels. A dishwasher (realistic s2) whose inner
@@ -125,10 +122,9 @@ def rotation_only(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     1.94 -> 1.98 deg; without any polish the axes lose (success 77 -> 75 of 84). On clean depth
     the ICP's translation is the better one (twins unposed: the storage drawer 0.5 -> 5.7 deg with
     the rotation only), so clean depth keeps the whole polish. O(N)."""
-    transform = np.array(transform, dtype=np.float64)
+    rotation = np.asarray(rotation, dtype=np.float64)
     centroid = np.asarray(points, dtype=np.float64).mean(axis=0)
-    transform[:3, 3] = centroid - transform[:3, :3] @ centroid
-    return transform
+    return make_transform(rotation, centroid - rotation @ centroid)
 
 
 def carried(labels: PartLabels, transform: np.ndarray) -> PartLabels:

@@ -130,8 +130,7 @@ class RuleBasedLabeler:
         robot view), in those scenes only.
         """
         labels = self._label_pass(start, end, scene, aligned, motion_hints, posed, replaced=False)
-        has_masks = bool(np.any(start.segment >= 0) and np.any(end.segment >= 0))
-        if has_masks or any(p.role == "movable" for p in labels.parts):
+        if has_masks(start, end) or any(p.role == "movable" for p in labels.parts):
             return labels
         again = self._label_pass(start, end, scene, aligned, motion_hints, posed, replaced=True)
         if not any(p.role == "movable" for p in again.parts):
@@ -156,9 +155,9 @@ class RuleBasedLabeler:
             posed = bool(aligned and scene is not None and scene.posed)
         rng = np.random.default_rng(config.seed)
         warnings: list[str] = []
-        has_masks = bool(np.any(start.segment >= 0) and np.any(end.segment >= 0))
+        masked = has_masks(start, end)
         original_start, original_end, split_ids = start, end, frozenset()
-        if has_masks:   # merged / split masks put right by the state's other views (module doc, step 1)
+        if masked:   # merged / split masks put right by the state's other views (module doc, step 1)
             ids, repair_rng = named_mask_ids(start, end), np.random.default_rng(config.seed + 7)
             start, start_notes = repair_merged_masks(start, ids, repair_rng)
             end, end_notes = repair_merged_masks(end, ids, repair_rng)
@@ -170,7 +169,7 @@ class RuleBasedLabeler:
         spacing = max(median_spacing(work_start.points, sample=4000, rng=rng),
                       median_spacing(work_end.points, sample=4000, rng=rng))
         radius = config.inlier_radius_spacings * spacing
-        if has_masks:
+        if masked:
             start_segments, end_segments = work_start.segment, work_end.segment
         else:
             start_segments, end_segments = _motion_split(work_start, work_end, config, spacing, start, end, rng,
@@ -178,7 +177,7 @@ class RuleBasedLabeler:
             warnings.append("no masks: parts come from a motion-based split (points that moved)")
             config = replace(config, min_segment_share=max(config.min_segment_share,
                                                            config.motion_piece_min_share))
-        named = named_mask_ids(work_start, work_end) - split_ids if has_masks else frozenset()
+        named = named_mask_ids(work_start, work_end) - split_ids if masked else frozenset()
         start_groups = _merge_across_frames(work_start, start_segments, radius, config, rng, named)
         end_groups = _merge_across_frames(work_end, end_segments, radius, config, rng, named)
         if not start_groups or not end_groups:
@@ -190,14 +189,14 @@ class RuleBasedLabeler:
         context = PairContext(work_start, work_end, start_groups, end_groups, radius, diameter, views[0], views[1],
                               config.max_points_per_segment, config.pair_registration_points, config.seed)
         context.prepare()
-        mask_ids = mask_agreement(work_start, work_end, start_groups, end_groups, named, split_ids) if has_masks else None
+        mask_ids = mask_agreement(work_start, work_end, start_groups, end_groups, named, split_ids) if masked else None
         candidates = score_pairs(context, config.match_min_score, list(motion_hints or []), mask_ids)
         moving = {key for key, c in candidates.items() if not _is_static(c.transform, c.i, work_start, start_groups, radius)}
         assignment = assign(candidates, len(start_groups), len(end_groups), diameter, config.match_min_score, moving)
         pairs = [(i, j, candidates[(i, j)].transform, candidates[(i, j)].score) for i, j in assignment.pairs]
         extras = _extras(context, candidates, assignment.pairs, start_groups, end_groups, config, warnings)
         layers = None
-        if not has_masks:
+        if not masked:
             layers = _layers_without_masks(work_start, work_end, start_segments, end_segments, candidates,
                                            assignment.pairs, radius, config, warnings, context)
             unseen = bool(np.any(start_segments == UNSEEN) or np.any(end_segments == UNSEEN))
@@ -206,24 +205,30 @@ class RuleBasedLabeler:
                 # moved points were unseen (no piece holds them; only a motion can claim them).
                 layers = None
         labels = _assign_parts(work_start, work_end, start_segments, end_segments, start_groups, end_groups, pairs,
-                               extras, radius, config, warnings, motion_split=not has_masks,
+                               extras, radius, config, warnings, motion_split=not masked,
                                identity_scores={k: c.identity for k, c in candidates.items()},
                                posed=posed, diameter=diameter, layers=layers, views=views, aligned=aligned)
         part_of_pair = _part_of_pairs(labels, pairs, start_groups)
         diagnostics = _pairing_diagnostics(assignment, candidates, part_of_pair, warnings, voxel,
-                                           swaps_only=not has_masks)
-        labels = _to_full(labels, start, end, start_map, end_map, has_masks)
+                                           swaps_only=not masked)
+        labels = _to_full(labels, start, end, start_map, end_map, masked)
         _refine_on_full(labels, start, end, config)
         diagnostics["consistency"] = _object_consistency(labels, work_start, work_end, start_map, views[1], warnings)
         diagnostics["voxel"] = voxel
         diagnostics["work_points"] = [len(work_start), len(work_end)]
-        diagnostics["motion_split"] = not has_masks
+        diagnostics["motion_split"] = not masked
         labels.warnings = warnings
         _attach(labels, diagnostics)
         return labels
 
 
 # ---------------------------------------------------------------------- helpers
+
+
+def has_masks(start: LabelledCloud, end: LabelledCloud) -> bool:
+    """Whether the labeler reads parts from the clouds' mask segments: both states have segmented
+    points. Otherwise it splits the points by motion. O(N)."""
+    return bool(np.any(start.segment >= 0) and np.any(end.segment >= 0))
 
 
 def _median_spacing(points: np.ndarray, rng: np.random.Generator, sample: int = 4000) -> float:
