@@ -98,6 +98,21 @@ def _stated_sigmas(joint: Any) -> dict[str, float | None]:
             "state_sigma": None if _finite(state) is None else float(np.degrees(state) if revolute else state)}
 
 
+def _confidence_terms(joint: Any) -> dict[str, float | None]:
+    """What the joint's confidence was made of (``sparseart.joints.reliability.confidence``), so a
+    bench can study it without rerunning: ``covered_fraction``, ``residual_excess`` (the residual
+    beyond the part's noise floor, in part radii) and ``residual_floor`` (the floor, in part
+    radii). None where the joint does not report them (the ICP peer)."""
+    diagnostics = getattr(joint, "diagnostics", None) or {}
+    radius = _finite(diagnostics.get("part_radius"))
+    floor = _finite(diagnostics.get("residual_floor"))
+    residual = _finite(getattr(joint, "residual", None))
+    relative = radius is not None and radius > 0 and floor is not None and residual is not None
+    return {"covered_fraction": _finite(diagnostics.get("covered_fraction")),
+            "residual_excess": float(np.sqrt(max(residual ** 2 - floor ** 2, 0.0)) / radius) if relative else None,
+            "residual_floor": floor / radius if relative else None}
+
+
 def evaluate(result: Articulation, scene: Scene, gt: dict[str, Any]) -> list[dict[str, Any]]:
     """Per ground-truth joint: the metrics.joint_errors dict plus "name" and "part" (matched
     predicted part id or None). Units: degrees for angles, scene units for positions."""
@@ -126,7 +141,8 @@ def evaluate(result: Articulation, scene: Scene, gt: dict[str, Any]) -> list[dic
                 "origin": to_world[:3, :3] @ joint.origin + to_world[:3, 3],
                 "angle": joint.angle, "distance": joint.distance}
         rows[k] = {**metrics.joint_errors(pred, gt_joints[k]), "part": part.spec.id,
-                   **_stated_sigmas(joint), "confidence": float(joint.confidence)}
+                   **_stated_sigmas(joint), "confidence": float(joint.confidence),
+                   **_confidence_terms(joint)}
     for k in unmatched:
         rows[k] = {**metrics.unmatched_joint_errors(gt_joints[k], position_max=scale), "part": None}
     for row, g in zip(rows, gt_joints):

@@ -294,7 +294,8 @@ def ratio_note(summary: list[dict[str, Any]]) -> str:
 CSV_FIELDS = ("object", "setting", "method", "name", "gt_type", "pred_type", "type_correct", "unmatched",
               "axis_deg", "position", "state", "state_along", "gt_state", "render_seconds", "pipeline_seconds",
               *(f"{s}_seconds" for s in STAGES), "n_predicted", "n_warnings", "seed",
-              "axis_sigma_deg", "origin_sigma", "state_sigma", "confidence")
+              "axis_sigma_deg", "origin_sigma", "state_sigma", "confidence", "covered_fraction", "residual_excess",
+              "residual_floor")
 
 
 def rows_csv(rows: list[dict[str, Any]]) -> str:
