@@ -256,3 +256,21 @@ def test_real_scene_where_nothing_moved_has_no_part(tmp_path) -> None:
     result = sparseart.run(scene)
     assert not result.joints, [(j.type, j.confidence) for _, j in result.joints]
     assert any("no part moved" in w for w in result.warnings), result.warnings
+
+
+@requires_real
+def test_real_laptop_with_noisier_depth(laptop, tmp_path) -> None:
+    # Both depth images with 0.5 % multiplicative per-pixel noise on top of the sensor's own (a
+    # cheaper or farther sensor: 4 mm at the lid): the same one lid.
+    import cv2
+    import sparseart
+
+    _, gt = laptop
+    scene = _variant(tmp_path, "noisier")
+    rng = np.random.default_rng(0)
+    for state in ("start", "end"):
+        path = scene / state / "depth" / "000.png"
+        depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.float64)
+        noisy = np.where(depth > 0, depth * (1.0 + 0.005 * rng.standard_normal(depth.shape)), 0.0)
+        cv2.imwrite(str(path), np.clip(np.round(noisy), 0, 65535).astype(np.uint16))
+    _assert_lid_like_the_estimate(_lid(sparseart.run(scene)), gt)
