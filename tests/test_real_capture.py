@@ -159,32 +159,15 @@ def _assert_lid_like_the_estimate(joint, gt, to_world=np.eye(4)) -> None:
     assert abs(min(turn, 360.0 - turn) - (180.0 - gt["angle_deg_abs"])) < 10.0
 
 
-def _variant(tmp_path, name: str, cameras_edit=None, swap: bool = False):
-    """A copy of the capture under ``tmp_path / name`` (states swapped with ``swap``), its
-    cameras.json passed through ``cameras_edit``."""
-    import shutil
-
-    scene = tmp_path / name
-    scene.mkdir()
-    for state, source in (("start", "end" if swap else "start"), ("end", "start" if swap else "end")):
-        shutil.copytree(REAL / source, scene / state)
-    cameras = json.loads((REAL / "cameras.json").read_text())
-    if swap:
-        cameras["start"], cameras["end"] = cameras["end"], cameras["start"]
-    if cameras_edit is not None:
-        cameras_edit(cameras)
-    (scene / "cameras.json").write_text(json.dumps(cameras))
-    return scene
-
-
 @requires_real
 def test_real_laptop_opened_instead_of_closed(laptop, tmp_path) -> None:
     # The capture played backwards: a person opens the lid, the hands are on it in the START
     # state. The same hinge comes out, turning the other way.
     import sparseart
+    from sparseart.datasets.capture_variants import played_backwards
 
     result, gt = laptop
-    opened = _lid(sparseart.run(_variant(tmp_path, "opened", swap=True)))
+    opened = _lid(sparseart.run(played_backwards(REAL, tmp_path / "opened")))
     _assert_lid_like_the_estimate(opened, gt)
     closed = _lid(result)
     assert np.sign(opened.angle * (opened.axis @ closed.axis)) == -np.sign(closed.angle)
@@ -195,14 +178,10 @@ def test_real_laptop_without_camera_poses(laptop, tmp_path) -> None:
     # No cam_to_world (a capture whose robot did not log its head pose): the result is in the
     # start camera's frame; mapped to the world by the logged pose it is the same hinge.
     import sparseart
-
-    def drop_poses(cameras: dict) -> None:
-        for state in ("start", "end"):
-            for view in cameras[state]:
-                view.pop("cam_to_world")
+    from sparseart.datasets.capture_variants import without_poses
 
     _, gt = laptop
-    result = sparseart.run(_variant(tmp_path, "unposed", drop_poses))
+    result = sparseart.run(without_poses(REAL, tmp_path / "unposed"))
     assert result.frame_kind == "camera"
     to_world = np.asarray(json.loads((REAL / "cameras.json").read_text())["start"][0]["cam_to_world"])
     _assert_lid_like_the_estimate(_lid(result), gt, to_world)
@@ -212,48 +191,21 @@ def test_real_laptop_without_camera_poses(laptop, tmp_path) -> None:
 def test_real_laptop_at_half_resolution_as_jpeg(laptop, tmp_path) -> None:
     # 320 x 240 (depth subsampled, K halved) and the pictures as JPEG at quality 60: a cheaper
     # camera's capture of the same scene.
-    import cv2
     import sparseart
-
-    def halve(cameras: dict) -> None:
-        for state in ("start", "end"):
-            for view in cameras[state]:
-                K = np.asarray(view["K"], dtype=np.float64)
-                K[:2] *= 0.5
-                K[:2, 2] -= 0.25       # pixel centres of the 2 x 2 blocks' top-left samples
-                view["K"], view["image"] = K.tolist(), "rgb/000.jpg"
+    from sparseart.datasets.capture_variants import downscaled
 
     _, gt = laptop
-    scene = _variant(tmp_path, "half", halve)
-    for state in ("start", "end"):
-        rgb = cv2.imread(str(scene / state / "rgb" / "000.png"))
-        (scene / state / "rgb" / "000.png").unlink()
-        cv2.imwrite(str(scene / state / "rgb" / "000.jpg"), cv2.resize(rgb, (320, 240), interpolation=cv2.INTER_AREA),
-                    [cv2.IMWRITE_JPEG_QUALITY, 60])
-        depth = cv2.imread(str(scene / state / "depth" / "000.png"), cv2.IMREAD_UNCHANGED)
-        cv2.imwrite(str(scene / state / "depth" / "000.png"), np.ascontiguousarray(depth[::2, ::2]))
-    _assert_lid_like_the_estimate(_lid(sparseart.run(scene)), gt)
+    _assert_lid_like_the_estimate(_lid(sparseart.run(downscaled(REAL, tmp_path / "half", 2, 60))), gt)
 
 
 @requires_real
 def test_real_scene_where_nothing_moved_has_no_part(tmp_path) -> None:
     # The start capture twice, the second with sensor-like depth noise (0.3 % of the distance)
     # and image noise: nothing moved, and nothing may come out as a part.
-    import cv2
     import sparseart
+    from sparseart.datasets.capture_variants import still_twice
 
-    def same_cameras(cameras: dict) -> None:
-        cameras["end"] = cameras["start"]
-
-    scene = _variant(tmp_path, "still", same_cameras)
-    rng = np.random.default_rng(0)
-    depth = cv2.imread(str(REAL / "start" / "depth" / "000.png"), cv2.IMREAD_UNCHANGED).astype(np.float64)
-    noisy = np.where(depth > 0, depth * (1.0 + 0.003 * rng.standard_normal(depth.shape)), 0.0)
-    cv2.imwrite(str(scene / "end" / "depth" / "000.png"), np.clip(np.round(noisy), 0, 65535).astype(np.uint16))
-    rgb = cv2.imread(str(REAL / "start" / "rgb" / "000.png")).astype(np.float64)
-    cv2.imwrite(str(scene / "end" / "rgb" / "000.png"),
-                np.clip(rgb + 4.0 * rng.standard_normal(rgb.shape), 0, 255).astype(np.uint8))
-    result = sparseart.run(scene)
+    result = sparseart.run(still_twice(REAL, tmp_path / "still", 0.003, 4.0))
     assert not result.joints, [(j.type, j.confidence) for _, j in result.joints]
     assert any("no part moved" in w for w in result.warnings), result.warnings
 
@@ -262,15 +214,22 @@ def test_real_scene_where_nothing_moved_has_no_part(tmp_path) -> None:
 def test_real_laptop_with_noisier_depth(laptop, tmp_path) -> None:
     # Both depth images with 0.5 % multiplicative per-pixel noise on top of the sensor's own (a
     # cheaper or farther sensor: 4 mm at the lid): the same one lid.
-    import cv2
     import sparseart
+    from sparseart.datasets.capture_variants import with_depth_noise
 
     _, gt = laptop
-    scene = _variant(tmp_path, "noisier")
-    rng = np.random.default_rng(0)
-    for state in ("start", "end"):
-        path = scene / state / "depth" / "000.png"
-        depth = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.float64)
-        noisy = np.where(depth > 0, depth * (1.0 + 0.005 * rng.standard_normal(depth.shape)), 0.0)
-        cv2.imwrite(str(path), np.clip(np.round(noisy), 0, 65535).astype(np.uint16))
-    _assert_lid_like_the_estimate(_lid(sparseart.run(scene)), gt)
+    _assert_lid_like_the_estimate(_lid(sparseart.run(with_depth_noise(REAL, tmp_path / "noisier", 0.005, 0.005))), gt)
+
+
+@requires_real
+def test_real_laptop_seen_from_a_moved_camera_at_the_end(laptop, tmp_path) -> None:
+    # The end picture re-rendered from a camera 10 cm to the side and turned 5 deg (a head or a
+    # phone that moved between the pictures), posed and without poses: the same hinge.
+    import sparseart
+    from sparseart.datasets.capture_variants import moved_end_camera
+
+    _, gt = laptop
+    _assert_lid_like_the_estimate(_lid(sparseart.run(moved_end_camera(REAL, tmp_path / "posed", 0.1, 5.0))), gt)
+    result = sparseart.run(moved_end_camera(REAL, tmp_path / "unposed", 0.1, 5.0, posed=False))
+    to_world = np.asarray(json.loads((REAL / "cameras.json").read_text())["start"][0]["cam_to_world"])
+    _assert_lid_like_the_estimate(_lid(result), gt, to_world)
