@@ -136,7 +136,8 @@ def moved_end_camera(capture: Path, folder: Path, shift: float, yaw_deg: float, 
     turned by ``yaw_deg`` about its y axis (a head or a phone that moved between the pictures):
     the end points forward-projected with a z-buffer, one-pixel cracks filled from their
     neighbours (depth by a 3 x 3 closing, colour by inpainting), what the old camera never saw
-    left empty. ``cam_to_world`` follows the move; with ``posed`` False every pose is dropped."""
+    left empty, and so is every pixel whose depth the old view lacked (no point carries its colour).
+    ``cam_to_world`` follows the move; with ``posed`` False every pose is dropped."""
     cameras = _copy(capture, folder)
     scale = float(cameras.get("depth_scale", 1000.0))
     move = np.eye(4)
