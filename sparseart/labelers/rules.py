@@ -661,17 +661,26 @@ def _parts_from_layers(start: LabelledCloud, end: LabelledCloud, start_segments:
     """Without masks: pseudo-segment 0 is static, every motion layer is one movable part."""
     start_part = np.where(start_segments == 0, 0, -1).astype(np.int64)
     end_part = np.where(end_segments == 0, 0, -1).astype(np.int64)
-    priors, alternative_motions = {}, {}
+    priors, alternative_motions, confidence = {}, {}, {}
     for part_id, layer in enumerate(layers, start=1):
         start_part[layer.start] = part_id
         end_part[layer.end] = part_id
         transform, alternatives = _polish_motion(start, end, layer.start, layer.end, layer.transform, config,
                                                  radius, views)
         _add_part(parts, motions, priors, alternative_motions, part_id, transform, alternatives, warnings)
+        if getattr(layer, "revealed_beside", False):
+            confidence[part_id] = REVEALED_CONFIDENCE
+            warnings.append(f"part {part_id}: its motion lays it almost only onto surfaces the other state could "
+                            f"not see, beside a part whose motion uncovered them: it may be such a surface, not "
+                            f"a part; confidence x{REVEALED_CONFIDENCE:g}")
     if len(parts) == 1:
         warnings.append("no part moved between the two states")
     return PartLabels(parts=parts, start_part=start_part, end_part=end_part, initial_motion=motions,
-                      type_prior=priors, alternative_motions=alternative_motions, warnings=warnings)
+                      type_prior=priors, alternative_motions=alternative_motions, confidence=confidence,
+                      warnings=warnings)
+
+
+REVEALED_CONFIDENCE = 0.25   # the labeler's trust in a part that lands only on what another part revealed
 
 
 def _motion_clusters(start: LabelledCloud, end: LabelledCloud, start_groups: list[Group], end_groups: list[Group],
@@ -958,6 +967,10 @@ def _object_consistency(labels: PartLabels, work_start: LabelledCloud, work_end:
 
 
 def _attach(labels: PartLabels, diagnostics: dict) -> None:
-    """Store the diagnostics and the per-part pairing confidence on the labels."""
+    """Store the diagnostics and the per-part pairing confidence on the labels (the lower of it
+    and any trust the labels already state, e.g. a part laid only on revealed surfaces)."""
     labels.diagnostics = diagnostics
-    labels.confidence = dict(diagnostics.get("confidence", {}))
+    confidence = dict(diagnostics.get("confidence", {}))
+    for part, value in labels.confidence.items():
+        confidence[part] = min(confidence.get(part, 1.0), value)
+    labels.confidence = confidence
