@@ -99,17 +99,19 @@ def _stated_sigmas(joint: Any) -> dict[str, float | None]:
 
 
 def _confidence_terms(joint: Any) -> dict[str, float | None]:
-    """What the joint's confidence was made of (``sparseart.joints.reliability.confidence``), so a
+    """What the joint's confidence was made of (:func:`sparseart.joints.reliability.confidence`), so a
     bench can study it without rerunning: ``covered_fraction``, ``residual_excess`` (the residual
     beyond the part's noise floor, in part radii) and ``residual_floor`` (the floor, in part
     radii). None where the joint does not report them (the ICP peer)."""
+    from sparseart.joints.reliability import residual_excess
+
     diagnostics = getattr(joint, "diagnostics", None) or {}
     radius = _finite(diagnostics.get("part_radius"))
     floor = _finite(diagnostics.get("residual_floor"))
     residual = _finite(getattr(joint, "residual", None))
     relative = radius is not None and radius > 0 and floor is not None and residual is not None
     return {"covered_fraction": _finite(diagnostics.get("covered_fraction")),
-            "residual_excess": float(np.sqrt(max(residual ** 2 - floor ** 2, 0.0)) / radius) if relative else None,
+            "residual_excess": residual_excess(residual, floor) / radius if relative else None,
             "residual_floor": floor / radius if relative else None}
 
 

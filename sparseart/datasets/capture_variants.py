@@ -18,6 +18,8 @@ import cv2
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from sparseart.lift.rgbd import pixel_rays
+
 STATES = ("start", "end")
 
 
@@ -29,16 +31,14 @@ def _write_cameras(folder: Path, cameras: dict) -> None:
     (folder / "cameras.json").write_text(json.dumps(cameras))
 
 
-def _copy(capture: Path, folder: Path, swap: bool = False) -> dict:
-    """Copy the states' folders (swapped with ``swap``); return the cameras to edit and write."""
+def _copy(capture: Path, folder: Path, sources: tuple[str, str] = STATES) -> dict:
+    """Copy the capture's states ``sources`` as the new start and end (their cameras with them);
+    return the cameras to edit and write."""
     folder.mkdir(parents=True)
-    for state in STATES:
-        source = {"start": "end", "end": "start"}[state] if swap else state
-        shutil.copytree(capture / source, folder / state)
     cameras = _cameras(capture)
-    if swap:
-        cameras["start"], cameras["end"] = cameras["end"], cameras["start"]
-    return cameras
+    for state, source in zip(STATES, sources):
+        shutil.copytree(capture / source, folder / state)
+    return {**cameras, **{state: cameras[source] for state, source in zip(STATES, sources)}}
 
 
 def _depth_path(folder: Path, state: str, view: dict) -> Path:
@@ -47,7 +47,7 @@ def _depth_path(folder: Path, state: str, view: dict) -> Path:
 
 def played_backwards(capture: Path, folder: Path) -> Path:
     """The end state as start and the start as end: the opposite motion (a lid opened, not closed)."""
-    _write_cameras(folder, _copy(capture, folder, swap=True))
+    _write_cameras(folder, _copy(capture, folder, ("end", "start")))
     return folder
 
 
@@ -115,10 +115,7 @@ def still_twice(capture: Path, folder: Path, depth_share: float = 0.003, image_s
                 seed: int = 0) -> Path:
     """The start state twice, the second copy with depth noise (``depth_share``) and image noise
     (``image_sigma`` grey levels): nothing moved."""
-    cameras = _copy(capture, folder)
-    shutil.rmtree(folder / "end")
-    shutil.copytree(capture / "start", folder / "end")
-    cameras["end"] = cameras["start"]
+    cameras = _copy(capture, folder, ("start", "start"))
     rng = np.random.default_rng(seed)
     for view in cameras["end"]:
         path = _depth_path(folder, "end", view)
@@ -134,7 +131,8 @@ def still_twice(capture: Path, folder: Path, depth_share: float = 0.003, image_s
 def moved_end_camera(capture: Path, folder: Path, shift: float, yaw_deg: float, posed: bool = True) -> Path:
     """Each end view re-rendered from its camera moved by ``shift`` metres along its x axis and
     turned by ``yaw_deg`` about its y axis (a head or a phone that moved between the pictures):
-    the end points forward-projected with a z-buffer, one-pixel cracks filled from their
+    the end points (:func:`~sparseart.lift.rgbd.pixel_rays` x depth) forward-projected through K
+    with a z-buffer, one-pixel cracks filled from their
     neighbours (depth by a 3 x 3 closing, colour by inpainting), what the old camera never saw
     left empty, and so is every pixel whose depth the old view lacked (no point carries its colour).
     ``cam_to_world`` follows the move; with ``posed`` False every pose is dropped."""
@@ -149,14 +147,13 @@ def moved_end_camera(capture: Path, folder: Path, shift: float, yaw_deg: float, 
         depth = cv2.imread(str(depth_path), cv2.IMREAD_UNCHANGED).astype(np.float64) / scale
         rgb = cv2.imread(str(rgb_path), cv2.IMREAD_COLOR)
         height, width = depth.shape
-        v, u = np.nonzero(depth > 0)
-        z = depth[v, u]
-        points = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
+        valid = (depth > 0).reshape(-1)
+        points = pixel_rays(K, height, width)[valid] * depth.reshape(-1, 1)[valid]
         moved = (points - move[:3, 3]) @ move[:3, :3]            # old camera frame -> new
         ahead = moved[:, 2] > 1e-3
-        moved, colours = moved[ahead], rgb[v[ahead], u[ahead]]
-        uu = np.round(moved[:, 0] / moved[:, 2] * K[0, 0] + K[0, 2]).astype(np.int64)
-        vv = np.round(moved[:, 1] / moved[:, 2] * K[1, 1] + K[1, 2]).astype(np.int64)
+        moved, colours = moved[ahead], rgb.reshape(-1, 3)[valid][ahead]
+        pixels = (moved / moved[:, 2:]) @ K.T                      # (u, v, 1) in the new image
+        uu, vv = np.round(pixels[:, 0]).astype(np.int64), np.round(pixels[:, 1]).astype(np.int64)
         inside = (uu >= 0) & (uu < width) & (vv >= 0) & (vv < height)
         order = np.argsort(-moved[inside, 2])                      # far first: the near overwrite
         new_depth, new_rgb = np.zeros((height, width)), np.zeros_like(rgb)

@@ -141,6 +141,12 @@ def reliability_warnings(kind: str, uncertainty: dict, angle: float | None, dist
     return found
 
 
+def residual_excess(residual: float, floor: float) -> float:
+    """The residual beyond the noise floor, sqrt(max(residual^2 - floor^2, 0)), in the unit of
+    both (:func:`~sparseart.joints.noise_floor.residual_floor`). O(1)."""
+    return float(np.sqrt(max(residual ** 2 - floor ** 2, 0.0)))
+
+
 def confidence(covered: float, residual: float, part_radius: float, warnings: list[FitWarning],
                floor: float = 0.0) -> float:
     """In [0, 1]: the covered fraction (:func:`covered_fraction`: how much of the part the motion
@@ -149,8 +155,7 @@ def confidence(covered: float, residual: float, part_radius: float, warnings: li
     residual beyond what the part's own sampling and depth noise leave under a perfect motion
     (``floor``, :func:`~sparseart.joints.noise_floor.residual_floor`; same units as ``residual``),
     so noise alone does not read as a bad fit."""
-    excess = float(np.sqrt(max(residual ** 2 - floor ** 2, 0.0)))
-    relative = excess / max(part_radius, 1e-12)
+    relative = residual_excess(residual, floor) / max(part_radius, 1e-12)
     value = float(np.clip(covered, 0, 1) / (1.0 + (relative / CONFIDENCE_RESIDUAL) ** 2))
     if any(w.code.lowers_confidence for w in warnings):
         value *= 0.5

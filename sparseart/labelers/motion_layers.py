@@ -357,6 +357,7 @@ def _merge_agreeing(ratings: Ratings, layers: list[MotionLayer]) -> list[MotionL
     return layers
 
 
+TURNING_DEG = 5.0          # a layer whose motion turns by less is no hinge's (blind pieces, revealed layers)
 BLIND_SHARE = 0.05         # a layer whose hits land on seen points less than this share is blind ...
 SAME_HINGE_DEG = 15.0      # ... and joins a touching sighted layer that turns about an axis within this
 
@@ -387,7 +388,7 @@ def _blind_piece(ratings: Ratings, a: MotionLayer, b: MotionLayer) -> MotionLaye
     alone (a lid raised towards the camera, which hides its own closed pose) is left as it is.
     O(N) for N moved points."""
     turns = [Rotation.from_matrix(layer.transform[:3, :3]).as_rotvec() for layer in (a, b)]
-    if min(np.linalg.norm(turn) for turn in turns) < np.radians(5.0):
+    if min(np.linalg.norm(turn) for turn in turns) < np.radians(TURNING_DEG):
         return None
     if axis_angle_deg(*turns) > SAME_HINGE_DEG:
         return None
@@ -403,10 +404,11 @@ SIGHTED_SHARE = 0.5        # a layer at least this share of whose hits land on s
 def _flag_revealed(ratings: Ratings, layers: list[MotionLayer]) -> None:
     """Mark each blind layer (under ``BLIND_SHARE`` of its hits on seen points,
     :func:`_sighted_share`) that touches a sighted layer (at least ``SIGHTED_SHARE``) turning by
-    5 deg or more, whatever its own axis: its motion lays its points almost only onto surfaces the
-    other state could not see, which the sighted part's motion uncovered and which staying put
-    explains as well. Unlike a blind piece (:func:`_blind_piece`, same hinge: it joins its part),
-    it may be a part of its own, so it stays a part; the labeler lowers its confidence and says so.
+    ``TURNING_DEG`` or more, whatever its own axis: its motion lays its points almost only onto
+    surfaces the other state could not see, which the sighted part's motion uncovered and which
+    staying put explains as well. Unlike a blind piece (:func:`_blind_piece`, same hinge: it joins
+    its part), it may be a part of its own, so it stays a part; the labeler lowers its confidence
+    and says so.
     Measured on the real laptop capture with 1 % per-pixel depth noise in both states (one draw):
     a 127.6 deg turn 41 deg off the lid's axis, 4 % of its hits seen, beside the lid (all seen),
     came out as a second lid turning 72 deg at confidence 0.75. A blind layer alone (a lid raised
@@ -417,7 +419,7 @@ def _flag_revealed(ratings: Ratings, layers: list[MotionLayer]) -> None:
             continue
         layer.revealed_beside = any(
             sighted[j] >= SIGHTED_SHARE
-            and np.degrees(rotation_angle(other.transform[:3, :3])) >= 5.0
+            and np.degrees(rotation_angle(other.transform[:3, :3])) >= TURNING_DEG
             and _touching(ratings, layer, other, ratings.context.radius)
             for j, other in enumerate(layers) if j != k)
 

@@ -668,7 +668,7 @@ def _parts_from_layers(start: LabelledCloud, end: LabelledCloud, start_segments:
         transform, alternatives = _polish_motion(start, end, layer.start, layer.end, layer.transform, config,
                                                  radius, views)
         _add_part(parts, motions, priors, alternative_motions, part_id, transform, alternatives, warnings)
-        if getattr(layer, "revealed_beside", False):
+        if layer.revealed_beside:
             confidence[part_id] = REVEALED_CONFIDENCE
             warnings.append(f"part {part_id}: its motion lays it almost only onto surfaces the other state could "
                             f"not see, beside a part whose motion uncovered them: it may be such a surface, not "
