@@ -90,14 +90,27 @@ def slide_votes(points: np.ndarray, tree: cKDTree, direction: np.ndarray, length
                 radius: float) -> np.ndarray:
     """(L,) int: for each length d of the ascending ``lengths``, how many of ``points`` (P, 3) land
     within ``radius`` of a point of ``tree`` (its M targets) after the slide d * ``direction``.
+    One group of :func:`grouped_slide_votes`."""
+    return grouped_slide_votes(points, np.zeros(len(points), dtype=np.int64), 1, tree, direction, lengths,
+                               radius)[0]
+
+
+def grouped_slide_votes(points: np.ndarray, group: np.ndarray, groups: int, tree: cKDTree,
+                        direction: np.ndarray, lengths: np.ndarray, radius: float) -> np.ndarray:
+    """(G, L) int: for each group g < ``groups`` of ``points`` (P, 3; ``group`` (P,) its labels)
+    and each length d of the ascending ``lengths``, how many of the group's points land within
+    ``radius`` of a point of ``tree`` (its M targets) after the slide d * ``direction``.
 
     Exact, without a query per length: a point p lands on target q after the slide d u iff q lies
     in the tube of radius r around p's line along u, and d is within h = sqrt(r^2 - |q - p|_perp^2)
     of (q - p) . u. So the targets of a point are the pairs within r of it across u (a 2-D k-d
-    tree of the targets projected onto the plane normal to u), each pair covers the lengths of one
-    interval, and a point votes once for every length one of its intervals covers.
-    O(M log M + P log M + K + V) for K tube pairs and V (point, length) votes; was O(L P log M).
+    tree of the targets projected onto the plane normal to u, built once for all groups), each
+    pair covers the lengths of one interval, and a point votes once for every length one of its
+    intervals covers. O(M log M + P log M + K + V) for K tube pairs and V (point, length) votes.
     """
+    votes = np.zeros((groups, len(lengths)), dtype=np.int64)
+    if len(points) == 0:
+        return votes
     u = np.asarray(direction, dtype=np.float64)
     u = u / np.linalg.norm(u)
     basis = np.linalg.svd(u[None, :])[2][1:]                  # (2, 3): the plane normal to u
@@ -105,7 +118,7 @@ def slide_votes(points: np.ndarray, tree: cKDTree, direction: np.ndarray, length
     pairs = cKDTree(targets @ basis.T).query_ball_point(points @ basis.T, r=radius)
     counts = np.fromiter((len(p) for p in pairs), dtype=np.int64, count=len(pairs))
     if counts.sum() == 0:
-        return np.zeros(len(lengths), dtype=np.int64)
+        return votes
     voter = np.repeat(np.arange(len(points)), counts)
     target = np.fromiter((j for p in pairs for j in p), dtype=np.int64, count=int(counts.sum()))
     offset = targets[target] - points[voter]
@@ -117,10 +130,11 @@ def slide_votes(points: np.ndarray, tree: cKDTree, direction: np.ndarray, length
     # lengths strictly inside (along - half, along + half): |p + d u - q| < r
     span = np.maximum(stop - first, 0)
     if span.sum() == 0:
-        return np.zeros(len(lengths), dtype=np.int64)
+        return votes
     index = np.repeat(first - np.cumsum(span) + span, span) + np.arange(int(span.sum()))
     key = np.unique(np.repeat(voter, span) * len(lengths) + index)
-    return np.bincount(key % len(lengths), minlength=len(lengths)).astype(np.int64)
+    cell = np.asarray(group, dtype=np.int64)[key // len(lengths)] * len(lengths) + key % len(lengths)
+    return np.bincount(cell, minlength=groups * len(lengths)).reshape(groups, len(lengths)).astype(np.int64)
 
 
 def vote_peaks(votes: np.ndarray, lengths: np.ndarray, direction: np.ndarray, min_points: int) -> list[np.ndarray]:

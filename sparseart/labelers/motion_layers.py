@@ -60,6 +60,7 @@ from ..geometry.transforms import axis_angle_deg, rotation_angle
 from .correspondence import PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, motion_size, register_sets, slide_direction
 from .motion_candidates import PLANE_HINGE_SAME_TURN_DEG, frame_slides, plane_hinges, slab_mirrors, twin_slides
 from .motion_ratings import Ratings
+from .small_slides import small_slides
 
 RESIDUAL_ROUNDS = 2
 PIECE_SHARE = 0.03          # moved pieces at least this share of the moved points are registered on their own
@@ -132,6 +133,10 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
     layers = _layers_with_reselection(ratings, price, chosen, floors)
     layers.sort(key=lambda layer: -(len(layer.start) + len(layer.end)))
     _flag_revealed(ratings, layers)
+    for transform, start_idx, end_idx in small_slides(ratings, layers):
+        layers.append(MotionLayer(transform, 0.0, start_idx, end_idx))
+        notes.append(f"a small part slid {np.linalg.norm(transform[:3, 3]):.3g} along an axis of the static body was "
+                     f"found among the points no larger part explains ({len(start_idx)} / {len(end_idx)} points)")
     return layers, notes
 
 
