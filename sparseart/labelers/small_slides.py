@@ -46,6 +46,8 @@ LINK_RADII = 2.0         # leftover points within this many inlier radii are one
 TOUCH_RADII = 5.0        # parts with one slide this close (either state) are one part
 PEAKS_PER_AXIS = 3       # local vote maxima rated per axis and piece
 STAYED_MAX_SHARE = 0.9   # a part whose start points' places the end still fills more than this did not leave them
+SEEN_THROUGH_SHARE = 0.65  # at least this share of its end points must lie where the start views saw through
+LAYER_EXPLAINS_SHARE = 0.5  # a piece a larger part's motion lays this much of onto the start is that part's
 
 
 def small_slides(ratings: Ratings, layers: list) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -66,6 +68,8 @@ def small_slides(ratings: Ratings, layers: list) -> list[tuple[np.ndarray, np.nd
     leftovers = ratings.end_moved[~in_layer_end[ratings.end_moved]]
     leftovers = leftovers[~_fringe(end, leftovers, np.flatnonzero(in_layer_end), context.radius)]
     free_start = np.flatnonzero(~in_layer_start)
+    fringe_start = np.zeros(len(start), dtype=bool)
+    fringe_start[free_start[_fringe(start, free_start, np.flatnonzero(in_layer_start), context.radius)]] = True
     if len(leftovers) < MIN_POINTS or len(free_start) < MIN_POINTS:
         return []
     seen = np.ones(len(end), dtype=bool)
@@ -83,14 +87,14 @@ def small_slides(ratings: Ratings, layers: list) -> list[tuple[np.ndarray, np.nd
     group = np.repeat(np.arange(len(tried)), [sizes[k] for k in tried])
     axes = np.asarray(context.frame, dtype=np.float64).T
     votes = [grouped_slide_votes(end[voters], group, len(tried), free_tree, -axis, grid, hit) for axis in axes]
-    claimed = np.zeros(len(start), dtype=bool)
+    claimed = fringe_start.copy()   # a layer's fringe is no part's partner
     found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     for slot, k in enumerate(tried):
         piece = leftovers[(pieces == k) & seen[leftovers]]
         best = None
         for axis, axis_votes in zip(axes, votes):
             for i in _peaks(axis_votes[slot], MIN_POINTS):
-                rated = _rate(ratings, free_start, free_tree, claimed, piece, grid[i] * axis)
+                rated = _rate(ratings, layers, free_start, free_tree, claimed, piece, grid[i] * axis)
                 if rated is not None and (best is None or len(rated[2]) > len(best[2])):
                     best = rated
         if best is None:
@@ -121,7 +125,7 @@ def _peaks(votes: np.ndarray, floor: int) -> list[int]:
     return peaks
 
 
-def _rate(ratings: Ratings, free_start: np.ndarray, free_tree: cKDTree, claimed: np.ndarray,
+def _rate(ratings: Ratings, layers: list, free_start: np.ndarray, free_tree: cKDTree, claimed: np.ndarray,
           piece: np.ndarray, shift: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The part a slide by ``shift`` makes of an end piece (seen work indices ``piece``), or None
     when it fails a test of the module doc: (transform, partner start indices, hit end indices)."""
@@ -131,12 +135,19 @@ def _rate(ratings: Ratings, free_start: np.ndarray, free_tree: cKDTree, claimed:
     landed = free_tree.query(back, k=1, distance_upper_bound=hit)[0] < hit
     if landed.sum() < max(MIN_POINTS, HIT_SHARE * len(piece)):
         return None
+    hits = piece[landed]
     views = ratings.context.start_views
     if views:
         violations = int(np.count_nonzero(views.classify(back[~landed]) == VIOLATION))
         if violations > VIOLATION_SHARE * len(piece):
             return None
-    hits = piece[landed]
+        if np.mean(views.classify(end[hits]) == VIOLATION) < SEEN_THROUGH_SHARE:
+            return None
+    for layer in layers:
+        undo = np.linalg.inv(layer.transform)
+        if np.mean(ratings.start_all.query(end[hits] @ undo[:3, :3].T + undo[:3, 3], k=1,
+                                           distance_upper_bound=hit)[0] < hit) > LAYER_EXPLAINS_SHARE:
+            return None
     near = cKDTree(end[hits]).query(start[free_start] + shift, k=1, distance_upper_bound=hit)[0] < hit
     partners = free_start[near & ~claimed[free_start]]
     if len(partners) < MIN_POINTS:
