@@ -6,28 +6,45 @@ opened doors hold 2-4 % of the moved points. Worse, a thin part slid within its 
 itself: most of a rack's start points lie near its own end points and read as static, so its
 start side has almost no moved points to vote with.
 
-Here each piece of the end state's leftovers (moved points, seen or unseen, in no layer; linked at
-``LINK_RADII`` inlier radii) is tried on its own, against every start point in no layer:
+The search runs only where the two states agree where nothing moved (the unmoved start points a
+median of at most ``AGREEMENT_RADII`` inlier radii from the end cloud: clean renders 0.000-0.010,
+the real capture's still camera 0): on rough depth (robot-shaped renders, 0.28-0.30) a point far
+from the other state is as often noise as motion, and the search made 46 parts of table and wall
+patches over 84 joints (robot-1view, seeds 0-3) and 35 (robot-sensor-1view), each moved
+background piece slid along the room's axes onto its own plane.
 
-* leftovers within one inlier radius of a layer's points of the same state are that layer's fringe
-  (a door's far edge just outside the hit radius), not a part, and are set aside;
-* for each axis of the static body's frame, both ways, the slide lengths d at which the piece's
-  seen points, slid back by d, land on start points (:func:`~.motion_candidates.grouped_slide_votes`);
-  the best few local peaks per axis are rated: hits (seen points landing within the hit radius),
-  violations (landing where the start views saw through), partners (start points in no layer that
-  the slide carries onto the piece's hits);
-* the piece becomes a part with its slide of most hits when the hits are at least ``MIN_POINTS``
-  and ``HIT_SHARE`` of its seen points, the partners at least ``MIN_POINTS``, the violations at
-  most ``VIOLATION_SHARE`` of the points it lays down, and the slide carries the part at most
-  :data:`~.motion_ratings.ANCHOR_MAX_SLIDE` radii of itself (:func:`~.motion_ratings.detached`);
-  its points are the hits and their partners;
-* parts with the same slide (within a hit radius) that touch (``TOUCH_RADII`` inlier radii) are one.
+Here each piece of the end state's leftovers (seen moved points in no layer, linked at
+``LINK_RADII`` inlier radii; leftovers within one inlier radius of a layer's points are that
+layer's fringe -- a door's far edge just outside the hit radius -- and are set aside) is tried on
+its own against the start points in no layer. For each axis of the static body's frame, both
+ways, the lengths d at which the piece, slid back by d, lands on those points are voted for
+(:func:`~.motion_candidates.grouped_slide_votes`); the best ``PEAKS_PER_AXIS`` lengths, charged
+for their travel as the pair cost does (``TRAVEL_PENALTY`` per object diameter: of two slides
+that lay it alike the shorter wins, as a wire grid slid one pitch further lays its protruding end
+as well), are rated, and the piece becomes a part with the best that passes every test:
 
-Measured (oven_7179_multi, clean posed renders, no masks): the three racks' pieces pick slides
-within 0.01 object units of their true travels (0.212 / 0.159 / 0.349 for 0.215 / 0.162 / 0.351,
-212-306 hits, no violation); the doors' leftovers (42-341 points) lie all within one inlier radius
-of their doors' layers. Cost O(A (M log M + P log M + K)) for A = 3 axes, M start points, P
-leftover points and K tube pairs, plus O(C log M) per rated peak of a piece of C points.
+* it lays at least ``MIN_POINTS`` and ``HIT_SHARE`` of the piece onto start points (its hits),
+  at most ``VIOLATION_SHARE`` of the piece where the start views saw through, and at least
+  ``SEEN_THROUGH_SHARE`` of its hits lie where the start views saw through (a piece of static
+  surface read as moved under a misregistration lies near where the start saw that surface);
+* no layer's motion lays more than ``LAYER_EXPLAINS_SHARE`` of its hits onto start points (a
+  piece of a part already found);
+* its partners -- start points in no layer and no layer's fringe, not taken by another small
+  part, that the slide lays onto its hits -- are at least ``MIN_POINTS``, come within
+  ``ATTACHED_RADII`` inlier radii of the static body (a slid part sits in its slot; a fragment of
+  a turning lid does not), and at most ``STAYED_MAX_SHARE`` of their places are filled in the end
+  (a static shelf read as moved, slid onto its twin shelf, left nothing);
+* the slide carries it at most :data:`~.motion_ratings.ANCHOR_MAX_SLIDE` radii of itself
+  (:func:`~.motion_ratings.detached`).
+
+Its points are the hits and their partners. Parts with the same slide (within a hit radius) that
+come within ``TOUCH_RADII`` inlier radii in either state are one part (a rack seen in pieces).
+
+Measured (oven_7179_multi, clean renders, no masks, seed 0): posed, the three racks slide
+0.212 / 0.159 / 0.349 for 0.215 / 0.162 / 0.351 and nothing else is a part; unposed, the same
+three racks (one 0.421: its true slide laid under half its piece). Cost O(A (M log M + P log M +
+K)) for A = 3 axes, M start points, P leftover points and K tube pairs, plus O(C log M) per rated
+length of a piece of C points.
 """
 from __future__ import annotations
 
@@ -36,6 +53,7 @@ from scipy.spatial import cKDTree
 
 from ..geometry.clouds import radius_components
 from .consistency import VIOLATION
+from .correspondence import TRAVEL_PENALTY
 from .motion_candidates import grouped_slide_votes
 from .motion_ratings import Ratings, detached
 
@@ -48,6 +66,9 @@ PEAKS_PER_AXIS = 3       # local vote maxima rated per axis and piece
 STAYED_MAX_SHARE = 0.9   # a part whose start points' places the end still fills more than this did not leave them
 SEEN_THROUGH_SHARE = 0.65  # at least this share of its end points must lie where the start views saw through
 LAYER_EXPLAINS_SHARE = 0.5  # a piece a larger part's motion lays this much of onto the start is that part's
+AGREEMENT_RADII = 0.1    # the search runs where the unmoved points lie a median of at most this from the other state
+AGREEMENT_SAMPLE = 5000  # ... over at most this many of them
+ATTACHED_RADII = 2.0     # a slid part sits in its slot: at start it comes this many inlier radii near the static body
 
 
 def small_slides(ratings: Ratings, layers: list) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -57,7 +78,7 @@ def small_slides(ratings: Ratings, layers: list) -> list[tuple[np.ndarray, np.nd
     layers: the kept :class:`~.motion_layers.MotionLayer` s. Returns (transform (4, 4) start->end
     pure translation, start work indices, end work indices) per part found, largest first."""
     context = ratings.context
-    if context.frame is None or not layers:
+    if context.frame is None or not layers or not _states_agree(ratings):
         return []
     start, end = ratings.start.points, ratings.end.points
     in_layer_start = np.zeros(len(start), dtype=bool)
@@ -93,9 +114,9 @@ def small_slides(ratings: Ratings, layers: list) -> list[tuple[np.ndarray, np.nd
         piece = leftovers[(pieces == k) & seen[leftovers]]
         best = None
         for axis, axis_votes in zip(axes, votes):
-            for i in _peaks(axis_votes[slot], MIN_POINTS):
+            for i in _peaks(axis_votes[slot] * (1.0 - TRAVEL_PENALTY * np.abs(grid) / context.diameter), MIN_POINTS):
                 rated = _rate(ratings, layers, free_start, free_tree, claimed, piece, grid[i] * axis)
-                if rated is not None and (best is None or len(rated[2]) > len(best[2])):
+                if rated is not None and (best is None or _support(rated, context.diameter) > _support(best, context.diameter)):
                     best = rated
         if best is None:
             continue
@@ -103,6 +124,25 @@ def small_slides(ratings: Ratings, layers: list) -> list[tuple[np.ndarray, np.nd
         claimed[partners] = True
         found.append((transform, partners, hits))
     return _join_touching(found, start, end, context.radius, hit)
+
+
+def _states_agree(ratings: Ratings) -> bool:
+    """Do the two states agree where nothing moved, so that a point of one state far from the
+    other is a sign of motion rather than of noise? True when the unmoved start points (at most
+    ``AGREEMENT_SAMPLE`` of the motion ratings' static sample) lie a median of at most
+    ``AGREEMENT_RADII`` inlier radii from the end cloud. O(S log N)."""
+    static = ratings.static_tree()
+    if static is None:
+        return False
+    sample = static.data[:: max(1, len(static.data) // AGREEMENT_SAMPLE)]
+    return float(np.median(ratings.end_all.query(sample, k=1)[0])) <= AGREEMENT_RADII * ratings.context.radius
+
+
+def _support(part: tuple[np.ndarray, np.ndarray, np.ndarray], diameter: float) -> float:
+    """A slid part's hits, less the pair cost's travel charge (``TRAVEL_PENALTY`` per object
+    diameter travelled): of two slides that lay as many points, the shorter (a grid of wires
+    slid by one more pitch lays its protruding end as well). O(1)."""
+    return len(part[2]) * (1.0 - TRAVEL_PENALTY * float(np.linalg.norm(part[0][:3, 3])) / diameter)
 
 
 def _fringe(points: np.ndarray, leftovers: np.ndarray, layer_points: np.ndarray, radius: float) -> np.ndarray:
@@ -113,9 +153,10 @@ def _fringe(points: np.ndarray, leftovers: np.ndarray, layer_points: np.ndarray,
     return distance < radius
 
 
-def _peaks(votes: np.ndarray, floor: int) -> list[int]:
-    """Indices of the ``PEAKS_PER_AXIS`` highest local maxima of ``votes`` (within two grid steps)
-    with at least ``floor`` votes, highest first (ties: the shorter index). O(L log L)."""
+def _peaks(votes: np.ndarray, floor: float) -> list[int]:
+    """Indices of the ``PEAKS_PER_AXIS`` highest of ``votes`` (support per length, travel charged)
+    at least ``floor`` and at least two grid steps apart, highest first (ties: the lower index).
+    O(L log L)."""
     peaks: list[int] = []
     for i in np.argsort(-votes, kind="stable"):
         if votes[i] < floor or len(peaks) == PEAKS_PER_AXIS:
@@ -148,9 +189,14 @@ def _rate(ratings: Ratings, layers: list, free_start: np.ndarray, free_tree: cKD
         if np.mean(ratings.start_all.query(end[hits] @ undo[:3, :3].T + undo[:3, 3], k=1,
                                            distance_upper_bound=hit)[0] < hit) > LAYER_EXPLAINS_SHARE:
             return None
-    near = cKDTree(end[hits]).query(start[free_start] + shift, k=1, distance_upper_bound=hit)[0] < hit
-    partners = free_start[near & ~claimed[free_start]]
+    # the free start points within a hit radius of a hit slid back: those the slide lays onto a hit
+    near = free_tree.query_ball_point(end[hits] - shift, r=hit, return_sorted=False)
+    partners = free_start[np.unique(np.fromiter((j for group in near for j in group), dtype=np.int64))]
+    partners = partners[~claimed[partners]]
     if len(partners) < MIN_POINTS:
+        return None
+    static = ratings.static_tree()
+    if static is not None and static.query(start[partners], k=1)[0].min() > ATTACHED_RADII * ratings.context.radius:
         return None
     stayed = ratings.end_all.query(start[partners], k=1, distance_upper_bound=hit)[0] < hit
     if stayed.mean() > STAYED_MAX_SHARE:
