@@ -87,8 +87,11 @@ class MotionLayer:
 def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.ndarray,
                   motions: list[np.ndarray], min_points: int,
                   pieces: tuple[list[np.ndarray], list[np.ndarray]] = ([], []),
-                  unseen: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[list[MotionLayer], list[str]]:
-    """Split the moved points of both states into rigid motions (module doc).
+                  unseen: tuple[np.ndarray, np.ndarray] | None = None,
+                  posed: bool = False) -> tuple[list[MotionLayer], list[str]]:
+    """Split the moved points of both states into rigid motions (module doc), then seek the small
+    slid parts among what they leave (:mod:`.small_slides`; ``posed``: the states' frame is the
+    cameras', not an estimate).
 
     context: the pair context of the two states (work clouds, radius, views, static frame);
     start_moved / end_moved: work-cloud indices of the moved points; motions: candidate (4, 4)
@@ -133,7 +136,7 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
     layers = _layers_with_reselection(ratings, price, chosen, floors)
     layers.sort(key=lambda layer: -(len(layer.start) + len(layer.end)))
     _flag_revealed(ratings, layers)
-    for transform, start_idx, end_idx in small_slides(ratings, layers):
+    for transform, start_idx, end_idx in small_slides(ratings, layers, posed):
         layers.append(MotionLayer(transform, 0.0, start_idx, end_idx))
         notes.append(f"a small part slid {np.linalg.norm(transform[:3, 3]):.3g} along an axis of the static body was "
                      f"found among the points no larger part explains ({len(start_idx)} / {len(end_idx)} points)")

@@ -198,7 +198,7 @@ class RuleBasedLabeler:
         layers = None
         if not masked:
             layers = _layers_without_masks(work_start, work_end, start_segments, end_segments, candidates,
-                                           assignment.pairs, radius, config, warnings, context)
+                                           assignment.pairs, radius, config, warnings, context, posed)
             unseen = bool(np.any(start_segments == UNSEEN) or np.any(end_segments == UNSEEN))
             if len(layers) < 2 and not (layers and unseen):
                 # One motion: the pieces' own pairing labels more of the points -- unless some
@@ -509,7 +509,7 @@ def _travel(pair: tuple[int, int, np.ndarray, float], start: LabelledCloud, star
 
 def _layers_without_masks(start: LabelledCloud, end: LabelledCloud, start_segments: np.ndarray,
                           end_segments: np.ndarray, candidates: dict, chosen: list[tuple[int, int]], radius: float,
-                          config: RuleLabelerConfig, warnings: list[str], context: PairContext):
+                          config: RuleLabelerConfig, warnings: list[str], context: PairContext, posed: bool = False):
     """Motion layers of the moved points (pseudo-segments > 0), starting from the motions of the
     assigned pairs that moved (:mod:`.motion_layers`).
 
@@ -536,7 +536,7 @@ def _layers_without_masks(start: LabelledCloud, end: LabelledCloud, start_segmen
     pieces = ([g.indices for g in context.start_groups if start_segments[g.indices[0]] > 0],
               [g.indices for g in context.end_groups if end_segments[g.indices[0]] > 0])
     unseen = (start_segments[start_moved] == UNSEEN, end_segments[end_moved] == UNSEEN)
-    layers, notes = motion_layers(context, start_moved, end_moved, motions, min_points, pieces, unseen)
+    layers, notes = motion_layers(context, start_moved, end_moved, motions, min_points, pieces, unseen, posed)
     warnings.extend(notes)
     return layers
 

@@ -71,11 +71,12 @@ AGREEMENT_SAMPLE = 5000  # ... over at most this many of them
 ATTACHED_RADII = 2.0     # a slid part sits in its slot: at start it comes this many inlier radii near the static body
 
 
-def small_slides(ratings: Ratings, layers: list) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+def small_slides(ratings: Ratings, layers: list, posed: bool = False) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Small slid parts among the leftovers of the motion layers (module doc).
 
     ratings: the motion layers' ratings (work clouds, moved points, views, static frame);
-    layers: the kept :class:`~.motion_layers.MotionLayer` s. Returns (transform (4, 4) start->end
+    layers: the kept :class:`~.motion_layers.MotionLayer` s; posed: the states share the cameras'
+    world frame (no registration error to mistake for motion). Returns (transform (4, 4) start->end
     pure translation, start work indices, end work indices) per part found, largest first."""
     context = ratings.context
     if context.frame is None or not layers or not _states_agree(ratings):
@@ -115,7 +116,7 @@ def small_slides(ratings: Ratings, layers: list) -> list[tuple[np.ndarray, np.nd
         best = None
         for axis, axis_votes in zip(axes, votes):
             for i in _peaks(axis_votes[slot] * (1.0 - TRAVEL_PENALTY * np.abs(grid) / context.diameter), MIN_POINTS):
-                rated = _rate(ratings, layers, free_start, free_tree, claimed, piece, grid[i] * axis)
+                rated = _rate(ratings, layers, posed, free_start, free_tree, claimed, piece, grid[i] * axis)
                 if rated is not None and (best is None or _support(rated, context.diameter) > _support(best, context.diameter)):
                     best = rated
         if best is None:
@@ -166,7 +167,7 @@ def _peaks(votes: np.ndarray, floor: float) -> list[int]:
     return peaks
 
 
-def _rate(ratings: Ratings, layers: list, free_start: np.ndarray, free_tree: cKDTree, claimed: np.ndarray,
+def _rate(ratings: Ratings, layers: list, posed: bool, free_start: np.ndarray, free_tree: cKDTree, claimed: np.ndarray,
           piece: np.ndarray, shift: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The part a slide by ``shift`` makes of an end piece (seen work indices ``piece``), or None
     when it fails a test of the module doc: (transform, partner start indices, hit end indices)."""
@@ -182,7 +183,7 @@ def _rate(ratings: Ratings, layers: list, free_start: np.ndarray, free_tree: cKD
         violations = int(np.count_nonzero(views.classify(back[~landed]) == VIOLATION))
         if violations > VIOLATION_SHARE * len(piece):
             return None
-        if np.mean(views.classify(end[hits]) == VIOLATION) < SEEN_THROUGH_SHARE:
+        if not posed and np.mean(views.classify(end[hits]) == VIOLATION) < SEEN_THROUGH_SHARE:
             return None
     for layer in layers:
         undo = np.linalg.inv(layer.transform)
