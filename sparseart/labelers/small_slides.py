@@ -17,16 +17,20 @@ Here each piece of the end state's leftovers (seen moved points in no layer, lin
 ``LINK_RADII`` inlier radii; leftovers within one inlier radius of a layer's points are that
 layer's fringe -- a door's far edge just outside the hit radius -- and are set aside) is tried on
 its own against the start points in no layer. For each axis of the static body's frame, both
-ways, the lengths d at which the piece, slid back by d, lands on those points are voted for
+ways, the lengths d (from ``MIN_TRAVEL_RADII`` inlier radii: a shorter slide carries a strip of a
+lid by its hinge, which its turn barely moves, as well) at which the piece, slid back by d, lands
+on those points are voted for
 (:func:`~.motion_candidates.grouped_slide_votes`); the best ``PEAKS_PER_AXIS`` lengths, charged
 for their travel as the pair cost does (``TRAVEL_PENALTY`` per object diameter: of two slides
 that lay it alike the shorter wins, as a wire grid slid one pitch further lays its protruding end
 as well), are rated, and the piece becomes a part with the best that passes every test:
 
 * it lays at least ``MIN_POINTS`` and ``HIT_SHARE`` of the piece onto start points (its hits),
-  at most ``VIOLATION_SHARE`` of the piece where the start views saw through, and at least
-  ``SEEN_THROUGH_SHARE`` of its hits lie where the start views saw through (a piece of static
-  surface read as moved under a misregistration lies near where the start saw that surface);
+  at most ``VIOLATION_SHARE`` of the piece where the start views saw through, and, where the
+  states' frame is estimated (not posed), at least ``SEEN_THROUGH_SHARE`` of its hits lie where
+  the start views saw through (a static surface read as moved under a misregistration lies near
+  where the start saw it; posed, a rack slid less than its depth lies near its own start wires,
+  seen there: 37-54 % seen through on a clean posed render);
 * no layer's motion lays more than ``LAYER_EXPLAINS_SHARE`` of its hits onto start points (a
   piece of a part already found);
 * its partners -- start points in no layer and no layer's fringe, not taken by another small
@@ -63,6 +67,7 @@ VIOLATION_SHARE = 0.05   # at most this share of the points it lays down may lan
 LINK_RADII = 2.0         # leftover points within this many inlier radii are one piece
 TOUCH_RADII = 5.0        # parts with one slide this close (either state) are one part
 PEAKS_PER_AXIS = 3       # local vote maxima rated per axis and piece
+MIN_TRAVEL_RADII = 3.0   # slides shorter than this many inlier radii are not sought (a lid's strip by its hinge)
 STAYED_MAX_SHARE = 0.9   # a part whose start points' places the end still fills more than this did not leave them
 SEEN_THROUGH_SHARE = 0.65  # at least this share of its end points must lie where the start views saw through
 LAYER_EXPLAINS_SHARE = 0.5  # a piece a larger part's motion lays this much of onto the start is that part's
@@ -103,7 +108,7 @@ def small_slides(ratings: Ratings, layers: list, posed: bool = False) -> list[tu
         return []
     free_tree = cKDTree(start[free_start])
     hit = ratings.radius
-    lengths = np.arange(2.0 * hit, context.diameter, 0.5 * hit)
+    lengths = np.arange(MIN_TRAVEL_RADII * context.radius, context.diameter, 0.5 * hit)
     grid = np.concatenate([-lengths[::-1], lengths])
     voters = np.concatenate([leftovers[(pieces == k) & seen[leftovers]] for k in tried])
     group = np.repeat(np.arange(len(tried)), [sizes[k] for k in tried])
