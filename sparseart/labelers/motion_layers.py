@@ -44,6 +44,8 @@ under a hand, carried onto the table the lid revealed). A motion whose layer hol
 points to be a part leaves the chosen set, and the points are assigned again among the others
 (the ties it took go back to their part); the selection then runs again without it, and is
 taken when it makes more parts (a spurious motion can have kept a part's own motion out).
+Parts too small to pay the price (an oven's wire racks beside its doors) are sought afterwards
+among the moved points the layers leave (:mod:`.small_slides`).
 Cost O(M N (log N + V)) for M motions and N moved points, plus one registration per residual
 piece.
 """
@@ -90,8 +92,8 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
                   unseen: tuple[np.ndarray, np.ndarray] | None = None,
                   posed: bool = False) -> tuple[list[MotionLayer], list[str]]:
     """Split the moved points of both states into rigid motions (module doc), then seek the small
-    slid parts among what they leave (:mod:`.small_slides`; ``posed``: the states' frame is the
-    cameras', not an estimate).
+    slid parts among what they leave (:mod:`.small_slides`; ``posed``: the states' frame is known
+    -- cameras, a trusted feature alignment or a still camera -- not a geometric estimate).
 
     context: the pair context of the two states (work clouds, radius, views, static frame);
     start_moved / end_moved: work-cloud indices of the moved points; motions: candidate (4, 4)

@@ -521,7 +521,8 @@ def _layers_without_masks(start: LabelledCloud, end: LabelledCloud, start_segmen
     gathered 317 slide votes; a washing machine's lid raised 67 deg had fewer than 543 points on
     its plane. Measured on the robot-shaped settings (16 objects, seeds 0-3): 38 -> 43 of 84
     joints within 10 deg (one view, reconstructor depth) and 35 -> 38 (sensor depth); the clean
-    maskless settings, where the object fills the views, keep the cloud floor (no change)."""
+    maskless settings, where the object fills the views, keep the cloud floor (no change).
+    ``posed``: the states' frame is known (the small-part search trusts free space more there)."""
     from .motion_layers import motion_layers
 
     start_moved = np.flatnonzero((start_segments > 0) | (start_segments == UNSEEN))

@@ -83,8 +83,9 @@ def small_slides(ratings: Ratings, layers: list, posed: bool = False) -> list[tu
     """Small slid parts among the leftovers of the motion layers (module doc).
 
     ratings: the motion layers' ratings (work clouds, moved points, views, static frame);
-    layers: the kept :class:`~.motion_layers.MotionLayer` s; posed: the states share the cameras'
-    world frame (no registration error to mistake for motion). Returns (transform (4, 4) start->end
+    layers: the kept :class:`~.motion_layers.MotionLayer` s; posed: the states' frame is known
+    (cameras, a trusted feature alignment or a still camera), not a geometric estimate whose
+    error could be mistaken for motion. Returns (transform (4, 4) start->end
     pure translation, start work indices, end work indices) per part found, largest first."""
     context = ratings.context
     if context.frame is None or not layers or not _states_agree(ratings):
