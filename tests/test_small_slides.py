@@ -80,7 +80,7 @@ def test_a_rack_slid_out_of_an_open_box_is_found_with_its_slide():
     ratings, layers, n_box, n_rack = _scene()
     found = small_slides(ratings, layers)
     assert len(found) == 1
-    transform, partners, hits = found[0]
+    transform, partners, hits = found[0].transform, found[0].start, found[0].end
     assert np.allclose(transform[:3, 3], SLIDE, atol=ratings.radius)
     rack_start = np.arange(n_box, n_box + n_rack)
     assert np.isin(partners, rack_start).mean() > 0.9 and len(partners) > 100
@@ -142,3 +142,16 @@ def test_no_search_where_the_states_disagree_where_nothing_moved():
     ratings.end.points[:n_box] += jitter
     ratings.end_all = cKDTree(ratings.end.points)
     assert small_slides(ratings, layers) == []
+
+
+def test_a_slide_another_length_lays_as_well_is_trusted_less():
+    """The rack's wire grid is periodic: slid one pitch further (or four), its protruding end lands
+    on the start rack as well, so the slide found has rivals laying as much and the labeler's trust
+    in it drops to its floor; a slide without a rival keeps full trust."""
+    from sparseart.labelers.small_slides import LEAST_TRUST, SlidPart
+
+    ratings, layers, _, _ = _scene()
+    (found,) = small_slides(ratings, layers)
+    assert found.rival > 0.9 and found.trust() == LEAST_TRUST
+    assert SlidPart(np.eye(4), np.arange(3), np.arange(3), rival=0.5).trust() == 1.0
+    assert 0.3 < SlidPart(np.eye(4), np.arange(3), np.arange(3), rival=0.9).trust() < 1.0

@@ -84,6 +84,7 @@ class MotionLayer:
     end: np.ndarray
     charge: float = 0.0     # the objective's physics charge per claimed point (blocked share, slide sine)
     revealed_beside: bool = False   # a blind layer beside a sighted turning one (:func:`_flag_revealed`)
+    trust: float = 1.0      # the labeler's trust in its motion (< 1: a small slide with a rival length)
 
 
 def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.ndarray,
@@ -138,10 +139,10 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
     layers = _layers_with_reselection(ratings, price, chosen, floors)
     layers.sort(key=lambda layer: -(len(layer.start) + len(layer.end)))
     _flag_revealed(ratings, layers)
-    for transform, start_idx, end_idx in small_slides(ratings, layers, posed):
-        layers.append(MotionLayer(transform, 0.0, start_idx, end_idx))
-        notes.append(f"a small part slid {np.linalg.norm(transform[:3, 3]):.3g} along an axis of the static body was "
-                     f"found among the points no larger part explains ({len(start_idx)} / {len(end_idx)} points)")
+    for part in small_slides(ratings, layers, posed):
+        layers.append(MotionLayer(part.transform, 0.0, part.start, part.end, trust=part.trust()))
+        notes.append(f"a small part slid {np.linalg.norm(part.transform[:3, 3]):.3g} along an axis of the static body "
+                     f"was found among the points no larger part explains ({len(part.start)} / {len(part.end)} points)")
     return layers, notes
 
 

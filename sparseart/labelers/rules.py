@@ -669,6 +669,10 @@ def _parts_from_layers(start: LabelledCloud, end: LabelledCloud, start_segments:
         transform, alternatives = _polish_motion(start, end, layer.start, layer.end, layer.transform, config,
                                                  radius, views)
         _add_part(parts, motions, priors, alternative_motions, part_id, transform, alternatives, warnings)
+        if layer.trust < 1.0:
+            confidence[part_id] = layer.trust
+            warnings.append(f"part {part_id}: a slide of another length lays its points almost as well (repeated "
+                            f"structure, e.g. a wire rack one pitch further): confidence x{layer.trust:.2f}")
         if layer.revealed_beside:
             confidence[part_id] = REVEALED_CONFIDENCE
             warnings.append(f"part {part_id}: its motion lays it almost only onto surfaces the other state could "

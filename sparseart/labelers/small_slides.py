@@ -54,6 +54,8 @@ length of a piece of C points.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -79,14 +81,37 @@ AGREEMENT_SAMPLE = 5000  # ... over at most this many of them
 ATTACHED_RADII = 2.0     # a slid part sits in its slot: at start it comes this many inlier radii near the static body
 
 
-def small_slides(ratings: Ratings, layers: list, posed: bool = False) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+RIVAL_SHARE = 0.85       # a slide of another length laying this share of its points as well makes the part ambiguous
+LEAST_TRUST = 0.3        # the labeler's trust in an ambiguous slide is at least this
+
+
+@dataclass
+class SlidPart:
+    """A small part found by a slide: (4, 4) start->end pure translation, the work-cloud indices of
+    its start / end points, and its rival: the support of the best slide of another length along
+    any axis (its laid points less the travel charge) over its own, 0 without one."""
+
+    transform: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    rival: float = 0.0
+
+    def trust(self) -> float:
+        """The labeler's trust in the slide: 1 unless a rival lays at least ``RIVAL_SHARE`` as much
+        (a wire rack slid one pitch further lays its protruding end as well), then falling linearly
+        to ``LEAST_TRUST`` as the rival reaches the slide's own support."""
+        if self.rival < RIVAL_SHARE:
+            return 1.0
+        return max(LEAST_TRUST, (1.0 - self.rival) / (1.0 - RIVAL_SHARE))
+
+
+def small_slides(ratings: Ratings, layers: list, posed: bool = False) -> list[SlidPart]:
     """Small slid parts among the leftovers of the motion layers (module doc).
 
     ratings: the motion layers' ratings (work clouds, moved points, views, static frame);
     layers: the kept :class:`~.motion_layers.MotionLayer` s; posed: the states' frame is known
     (cameras, a trusted feature alignment or a still camera), not a geometric estimate whose
-    error could be mistaken for motion. Returns (transform (4, 4) start->end
-    pure translation, start work indices, end work indices) per part found, largest first."""
+    error could be mistaken for motion. Returns the parts found (:class:`SlidPart`), largest first."""
     context = ratings.context
     if context.frame is None or not layers or not _states_agree(ratings):
         return []
@@ -119,20 +144,25 @@ def small_slides(ratings: Ratings, layers: list, posed: bool = False) -> list[tu
     axes = np.asarray(context.frame, dtype=np.float64).T
     votes = [grouped_slide_votes(end[voters], group, len(tried), free_tree, -axis, grid, hit) for axis in axes]
     claimed = fringe_start.copy()   # a layer's fringe is no part's partner
-    found: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    found: list[SlidPart] = []
     for slot, k in enumerate(tried):
         piece = leftovers[(pieces == k) & seen[leftovers]]
-        best = None
+        best, supports = None, []
         for axis, axis_votes in zip(axes, votes):
-            for i in _peaks(axis_votes[slot] * (1.0 - TRAVEL_PENALTY * np.abs(grid) / context.diameter), MIN_POINTS):
-                rated = _rate(ratings, layers, posed, free_start, free_tree, claimed, piece, grid[i] * axis)
+            for i in _peaks(axis_votes[slot] * _travel_factor(grid, context.diameter), MIN_POINTS):
+                shift = grid[i] * axis
+                supports.append((shift, len(_landed(free_tree, end[piece] - shift, hit))
+                                 * _travel_factor(np.linalg.norm(shift), context.diameter)))
+                rated = _rate(ratings, layers, posed, free_start, free_tree, claimed, piece, shift)
                 if rated is not None and (best is None or _support(rated, context.diameter) > _support(best, context.diameter)):
                     best = rated
         if best is None:
             continue
         transform, partners, hits = best
+        rival = max((support for shift, support in supports
+                     if np.linalg.norm(shift - transform[:3, 3]) > 2.0 * hit), default=0.0)
         claimed[partners] = True
-        found.append((transform, partners, hits))
+        found.append(SlidPart(transform, partners, hits, rival / _support(best, context.diameter)))
     return _join_touching(found, start, end, context.radius, hit)
 
 
@@ -148,11 +178,21 @@ def _states_agree(ratings: Ratings) -> bool:
     return float(np.median(ratings.end_all.query(sample, k=1)[0])) <= AGREEMENT_RADII * ratings.context.radius
 
 
+def _travel_factor(length, diameter: float):
+    """1 less the pair cost's travel charge (``TRAVEL_PENALTY`` per object diameter travelled),
+    for a length or an array of them: of two slides that lay as many points, the shorter wins (a
+    grid of wires slid by one more pitch lays its protruding end as well). O(1) per length."""
+    return 1.0 - TRAVEL_PENALTY * np.abs(length) / diameter
+
+
 def _support(part: tuple[np.ndarray, np.ndarray, np.ndarray], diameter: float) -> float:
-    """A slid part's hits, less the pair cost's travel charge (``TRAVEL_PENALTY`` per object
-    diameter travelled): of two slides that lay as many points, the shorter (a grid of wires
-    slid by one more pitch lays its protruding end as well). O(1)."""
-    return len(part[2]) * (1.0 - TRAVEL_PENALTY * float(np.linalg.norm(part[0][:3, 3])) / diameter)
+    """A rated slide's hits times its travel factor (:func:`_travel_factor`). O(1)."""
+    return len(part[2]) * float(_travel_factor(np.linalg.norm(part[0][:3, 3]), diameter))
+
+
+def _landed(free_tree: cKDTree, points: np.ndarray, hit: float) -> np.ndarray:
+    """Indices into ``points`` (slid back, (P, 3)) of those within ``hit`` of a free start point. O(P log M)."""
+    return np.flatnonzero(free_tree.query(points, k=1, distance_upper_bound=hit)[0] < hit)
 
 
 def _fringe(points: np.ndarray, leftovers: np.ndarray, layer_points: np.ndarray, radius: float) -> np.ndarray:
@@ -183,7 +223,8 @@ def _rate(ratings: Ratings, layers: list, posed: bool, free_start: np.ndarray, f
     hit = ratings.radius
     end, start = ratings.end.points, ratings.start.points
     back = end[piece] - shift
-    landed = free_tree.query(back, k=1, distance_upper_bound=hit)[0] < hit
+    landed = np.zeros(len(piece), dtype=bool)
+    landed[_landed(free_tree, back, hit)] = True
     if landed.sum() < max(MIN_POINTS, HIT_SHARE * len(piece)):
         return None
     hits = piece[landed]
@@ -219,23 +260,25 @@ def _rate(ratings: Ratings, layers: list, posed: bool, free_start: np.ndarray, f
     return transform, partners, hits
 
 
-def _join_touching(found: list[tuple[np.ndarray, np.ndarray, np.ndarray]], start: np.ndarray, end: np.ndarray,
-                   radius: float, hit: float) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Parts whose slides differ by less than ``hit`` and whose end points come within
-    ``TOUCH_RADII`` inlier radii are one part (a rack broken into pieces); largest first. O(F^2 P log P)."""
-    joined: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
-    for transform, partners, hits in found:
-        for index, (other, other_partners, other_hits) in enumerate(joined):
-            if np.linalg.norm(transform[:3, 3] - other[:3, 3]) >= hit:
+def _join_touching(found: list[SlidPart], start: np.ndarray, end: np.ndarray, radius: float,
+                   hit: float) -> list[SlidPart]:
+    """Parts whose slides differ by less than ``hit`` and whose points come within ``TOUCH_RADII``
+    inlier radii in either state are one part (a rack seen in pieces; its rival is the larger of
+    theirs); largest first. O(F^2 P log P)."""
+    joined: list[SlidPart] = []
+    for part in found:
+        for other in joined:
+            if np.linalg.norm(part.transform[:3, 3] - other.transform[:3, 3]) >= hit:
                 continue
-            gap = min(_gap(end, other_hits, hits, TOUCH_RADII * radius),
-                      _gap(start, other_partners, partners, TOUCH_RADII * radius))
+            gap = min(_gap(end, other.end, part.end, TOUCH_RADII * radius),
+                      _gap(start, other.start, part.start, TOUCH_RADII * radius))
             if gap < TOUCH_RADII * radius:
-                joined[index] = (other, np.union1d(other_partners, partners), np.union1d(other_hits, hits))
+                other.start, other.end = np.union1d(other.start, part.start), np.union1d(other.end, part.end)
+                other.rival = max(other.rival, part.rival)
                 break
         else:
-            joined.append((transform, partners, hits))
-    joined.sort(key=lambda part: -(len(part[1]) + len(part[2])))
+            joined.append(part)
+    joined.sort(key=lambda part: -(len(part.start) + len(part.end)))
     return joined
 
 
