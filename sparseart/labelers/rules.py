@@ -674,7 +674,7 @@ def _parts_from_layers(start: LabelledCloud, end: LabelledCloud, start_segments:
             warnings.append(f"part {part_id}: a slide of another length lays its points almost as well (repeated "
                             f"structure, e.g. a wire rack one pitch further): confidence x{layer.trust:.2f}")
         if layer.revealed_beside:
-            confidence[part_id] = REVEALED_CONFIDENCE
+            confidence[part_id] = min(confidence.get(part_id, 1.0), REVEALED_CONFIDENCE)
             warnings.append(f"part {part_id}: its motion lays it almost only onto surfaces the other state could "
                             f"not see, beside a part whose motion uncovered them: it may be such a surface, not "
                             f"a part; confidence x{REVEALED_CONFIDENCE:g}")

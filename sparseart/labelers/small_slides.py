@@ -79,8 +79,6 @@ LAYER_EXPLAINS_SHARE = 0.5  # a piece a larger part's motion lays this much of o
 AGREEMENT_RADII = 0.1    # the search runs where the unmoved points lie a median of at most this from the other state
 AGREEMENT_SAMPLE = 5000  # ... over at most this many of them
 ATTACHED_RADII = 2.0     # a slid part sits in its slot: at start it comes this many inlier radii near the static body
-
-
 RIVAL_SHARE = 0.85       # a slide of another length laying this share of its points as well makes the part ambiguous
 LEAST_TRUST = 0.3        # the labeler's trust in an ambiguous slide is at least this
 
@@ -139,21 +137,21 @@ def small_slides(ratings: Ratings, layers: list, posed: bool = False) -> list[Sl
     hit = ratings.radius
     lengths = np.arange(MIN_TRAVEL_RADII * context.radius, context.diameter, 0.5 * hit)
     grid = np.concatenate([-lengths[::-1], lengths])
-    voters = np.concatenate([leftovers[(pieces == k) & seen[leftovers]] for k in tried])
-    group = np.repeat(np.arange(len(tried)), [sizes[k] for k in tried])
+    seen_pieces = [leftovers[(pieces == k) & seen[leftovers]] for k in tried]
+    voters = np.concatenate(seen_pieces)
+    group = np.repeat(np.arange(len(tried)), [len(piece) for piece in seen_pieces])
     axes = np.asarray(context.frame, dtype=np.float64).T
     votes = [grouped_slide_votes(end[voters], group, len(tried), free_tree, -axis, grid, hit) for axis in axes]
     claimed = fringe_start.copy()   # a layer's fringe is no part's partner
     found: list[SlidPart] = []
-    for slot, k in enumerate(tried):
-        piece = leftovers[(pieces == k) & seen[leftovers]]
+    for slot, piece in enumerate(seen_pieces):
         best, supports = None, []
         for axis, axis_votes in zip(axes, votes):
             for i in _peaks(axis_votes[slot] * _travel_factor(grid, context.diameter), MIN_POINTS):
                 shift = grid[i] * axis
-                supports.append((shift, len(_landed(free_tree, end[piece] - shift, hit))
-                                 * _travel_factor(np.linalg.norm(shift), context.diameter)))
-                rated = _rate(ratings, layers, posed, free_start, free_tree, claimed, piece, shift)
+                landed = _landed(free_tree, end[piece] - shift, hit)
+                supports.append((shift, len(landed) * _travel_factor(np.linalg.norm(shift), context.diameter)))
+                rated = _rate(ratings, layers, posed, free_start, free_tree, claimed, piece, shift, landed)
                 if rated is not None and (best is None or _support(rated, context.diameter) > _support(best, context.diameter)):
                     best = rated
         if best is None:
@@ -217,14 +215,16 @@ def _peaks(votes: np.ndarray, floor: float) -> list[int]:
 
 
 def _rate(ratings: Ratings, layers: list, posed: bool, free_start: np.ndarray, free_tree: cKDTree, claimed: np.ndarray,
-          piece: np.ndarray, shift: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The part a slide by ``shift`` makes of an end piece (seen work indices ``piece``), or None
-    when it fails a test of the module doc: (transform, partner start indices, hit end indices)."""
+          piece: np.ndarray, shift: np.ndarray,
+          landed_at: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The part a slide by ``shift`` makes of an end piece (seen work indices ``piece``; those of
+    its positions that land on a free start point: ``landed_at``, :func:`_landed`), or None when it
+    fails a test of the module doc: (transform, partner start indices, hit end indices)."""
     hit = ratings.radius
     end, start = ratings.end.points, ratings.start.points
     back = end[piece] - shift
     landed = np.zeros(len(piece), dtype=bool)
-    landed[_landed(free_tree, back, hit)] = True
+    landed[landed_at] = True
     if landed.sum() < max(MIN_POINTS, HIT_SHARE * len(piece)):
         return None
     hits = piece[landed]
@@ -255,7 +255,7 @@ def _rate(ratings: Ratings, layers: list, posed: bool, free_start: np.ndarray, f
         return None
     transform = np.eye(4)
     transform[:3, 3] = shift
-    if detached(transform, start[partners], ratings.static_tree()):
+    if detached(transform, start[partners], static):
         return None
     return transform, partners, hits
 
