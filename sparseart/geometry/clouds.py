@@ -90,6 +90,12 @@ def radius_components(points: np.ndarray, link_radius: float) -> np.ndarray:
     return labels.astype(np.int64)
 
 
+def nearest_gap(points: np.ndarray, probes: np.ndarray, bound: float) -> float:
+    """Least distance from any of ``probes`` ((P, 3) float64) to ``points`` ((N, 3), same frame);
+    inf when none comes within ``bound``. Both non-empty. O((N + P) log N)."""
+    return float(np.min(cKDTree(points).query(probes, k=1, distance_upper_bound=bound)[0]))
+
+
 def scene_size(points: np.ndarray, max_points: int = 20000) -> float:
     """Median distance of the finite points to their centroid (the scale of RANSAC thresholds).
 

@@ -51,13 +51,13 @@ piece.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from ..geometry.clouds import radius_components, slab_axes
+from ..geometry.clouds import nearest_gap, radius_components, slab_axes
 from ..geometry.transforms import axis_angle_deg, rotation_angle
 from .correspondence import PHYSICS_WEIGHT, SLIDE_WEIGHT, PairContext, apply, motion_size, register_sets, slide_direction
 from .motion_candidates import PLANE_HINGE_SAME_TURN_DEG, frame_slides, plane_hinges, slab_mirrors, twin_slides
@@ -74,17 +74,33 @@ MERGE_HIT_SHARE = 0.6      # a touching layer the larger one's motion explains t
 
 
 @dataclass
+class Doubt:
+    """Why the labeler trusts a layer's motion less: ``trust`` in (0, 1) (the part's labeler
+    confidence takes the lowest of its doubts) and ``why``, the sentence the part's warning gives."""
+
+    trust: float
+    why: str
+
+
+REVEALED_TRUST = 0.25   # the labeler's trust in a layer that lands only on what another part revealed
+REVEALED_DOUBT = ("its motion lays it almost only onto surfaces the other state could not see, beside a part whose "
+                  "motion uncovered them: it may be such a surface, not a part")
+RIVAL_LENGTH_DOUBT = ("a slide of another length lays its points almost as well (repeated structure, e.g. a wire "
+                      "rack one pitch further)")
+
+
+@dataclass
 class MotionLayer:
     """One kept motion: (4, 4) start->end transform, its physics share, and the work-cloud
-    indices of the start / end points that follow it."""
+    indices of the start / end points that follow it; ``doubts``: why its motion is trusted less
+    (:func:`_flag_revealed`, a small slide's rival length)."""
 
     transform: np.ndarray
     physics: float
     start: np.ndarray
     end: np.ndarray
     charge: float = 0.0     # the objective's physics charge per claimed point (blocked share, slide sine)
-    revealed_beside: bool = False   # a blind layer beside a sighted turning one (:func:`_flag_revealed`)
-    trust: float = 1.0      # the labeler's trust in its motion (< 1: a small slide with a rival length)
+    doubts: list[Doubt] = field(default_factory=list)
 
 
 def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.ndarray,
@@ -140,7 +156,8 @@ def motion_layers(context: PairContext, start_moved: np.ndarray, end_moved: np.n
     layers.sort(key=lambda layer: -(len(layer.start) + len(layer.end)))
     _flag_revealed(ratings, layers)
     for part in small_slides(ratings, layers, posed):
-        layers.append(MotionLayer(part.transform, 0.0, part.start, part.end, trust=part.trust()))
+        doubts = [] if part.trust() >= 1.0 else [Doubt(part.trust(), RIVAL_LENGTH_DOUBT)]
+        layers.append(MotionLayer(part.transform, 0.0, part.start, part.end, doubts=doubts))
         notes.append(f"a small part slid {np.linalg.norm(part.transform[:3, 3]):.3g} along an axis of the static body "
                      f"was found among the points no larger part explains ({len(part.start)} / {len(part.end)} points)")
     return layers, notes
@@ -428,11 +445,11 @@ def _flag_revealed(ratings: Ratings, layers: list[MotionLayer]) -> None:
     for k, layer in enumerate(layers):
         if sighted[k] >= BLIND_SHARE:
             continue
-        layer.revealed_beside = any(
-            sighted[j] >= SIGHTED_SHARE
-            and np.degrees(rotation_angle(other.transform[:3, :3])) >= TURNING_DEG
-            and _touching(ratings, layer, other, ratings.context.radius)
-            for j, other in enumerate(layers) if j != k)
+        if any(sighted[j] >= SIGHTED_SHARE
+               and np.degrees(rotation_angle(other.transform[:3, :3])) >= TURNING_DEG
+               and _touching(ratings, layer, other, ratings.context.radius)
+               for j, other in enumerate(layers) if j != k):
+            layer.doubts.append(Doubt(REVEALED_TRUST, REVEALED_DOUBT))
 
 
 IN_PLANE_SAME_TURN_DEG = 2.0  # two motions of one slab turn alike within this ...
@@ -486,8 +503,7 @@ def _touching(ratings: Ratings, a: MotionLayer, b: MotionLayer, radius: float) -
     for cloud, ia, ib in ((ratings.start, a.start, b.start), (ratings.end, a.end, b.end)):
         if len(ia) and len(ib):
             probe = ib[:: max(1, len(ib) // 500)]
-            gap = cKDTree(cloud.points[ia]).query(cloud.points[probe], k=1, distance_upper_bound=3.0 * radius)[0]
-            if np.min(gap) < 3.0 * radius:
+            if nearest_gap(cloud.points[ia], cloud.points[probe], 3.0 * radius) < 3.0 * radius:
                 return True
     return False
 

@@ -669,23 +669,14 @@ def _parts_from_layers(start: LabelledCloud, end: LabelledCloud, start_segments:
         transform, alternatives = _polish_motion(start, end, layer.start, layer.end, layer.transform, config,
                                                  radius, views)
         _add_part(parts, motions, priors, alternative_motions, part_id, transform, alternatives, warnings)
-        if layer.trust < 1.0:
-            confidence[part_id] = layer.trust
-            warnings.append(f"part {part_id}: a slide of another length lays its points almost as well (repeated "
-                            f"structure, e.g. a wire rack one pitch further): confidence x{layer.trust:.2f}")
-        if layer.revealed_beside:
-            confidence[part_id] = min(confidence.get(part_id, 1.0), REVEALED_CONFIDENCE)
-            warnings.append(f"part {part_id}: its motion lays it almost only onto surfaces the other state could "
-                            f"not see, beside a part whose motion uncovered them: it may be such a surface, not "
-                            f"a part; confidence x{REVEALED_CONFIDENCE:g}")
+        for doubt in layer.doubts:
+            confidence[part_id] = min(confidence.get(part_id, 1.0), doubt.trust)
+            warnings.append(f"part {part_id}: {doubt.why}: confidence x{doubt.trust:.2g}")
     if len(parts) == 1:
         warnings.append("no part moved between the two states")
     return PartLabels(parts=parts, start_part=start_part, end_part=end_part, initial_motion=motions,
                       type_prior=priors, alternative_motions=alternative_motions, confidence=confidence,
                       warnings=warnings)
-
-
-REVEALED_CONFIDENCE = 0.25   # the labeler's trust in a part that lands only on what another part revealed
 
 
 def _motion_clusters(start: LabelledCloud, end: LabelledCloud, start_groups: list[Group], end_groups: list[Group],

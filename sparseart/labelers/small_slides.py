@@ -59,7 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..geometry.clouds import radius_components
+from ..geometry.clouds import nearest_gap, radius_components
 from .consistency import VIOLATION
 from .correspondence import TRAVEL_PENALTY
 from .motion_candidates import grouped_slide_votes
@@ -270,8 +270,8 @@ def _join_touching(found: list[SlidPart], start: np.ndarray, end: np.ndarray, ra
         for other in joined:
             if np.linalg.norm(part.transform[:3, 3] - other.transform[:3, 3]) >= hit:
                 continue
-            gap = min(_gap(end, other.end, part.end, TOUCH_RADII * radius),
-                      _gap(start, other.start, part.start, TOUCH_RADII * radius))
+            gap = min(nearest_gap(end[other.end], end[part.end], TOUCH_RADII * radius),
+                      nearest_gap(start[other.start], start[part.start], TOUCH_RADII * radius))
             if gap < TOUCH_RADII * radius:
                 other.start, other.end = np.union1d(other.start, part.start), np.union1d(other.end, part.end)
                 other.rival = max(other.rival, part.rival)
@@ -280,8 +280,3 @@ def _join_touching(found: list[SlidPart], start: np.ndarray, end: np.ndarray, ra
             joined.append(part)
     joined.sort(key=lambda part: -(len(part.start) + len(part.end)))
     return joined
-
-
-def _gap(points: np.ndarray, a: np.ndarray, b: np.ndarray, bound: float) -> float:
-    """Least distance between the points ``a`` and ``b`` (indices into ``points``), inf beyond ``bound``."""
-    return float(np.min(cKDTree(points[a]).query(points[b], k=1, distance_upper_bound=bound)[0]))
