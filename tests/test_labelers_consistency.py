@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from sparseart.labelers.consistency import CONSISTENT, HIDDEN, VIOLATION, state_views, visible_fraction
-from sparseart.labelers.correspondence import (Assignment, Group, PairCandidate, _Screw, assign,
+from sparseart.geometry.sweep import Screw
+from sparseart.labelers.correspondence import (Assignment, Group, PairCandidate, assign,
                                                distinct_by_masks, mask_agreement, prefer_small_turns)
 from sparseart.labelers.rules import _downsample
 from sparseart.geometry.planes import manhattan_frame
@@ -128,13 +129,13 @@ def test_screw_interpolation_reaches_the_motion_and_its_inverse():
     transform = np.eye(4)
     transform[:3, :3] = Rotation.from_rotvec([0.2, -0.5, 0.9]).as_matrix()
     transform[:3, 3] = [0.3, -0.1, 0.4]
-    np.testing.assert_allclose(_Screw(transform).at(1.0), transform, atol=1e-9)
-    np.testing.assert_allclose(_Screw(transform, -1.0).at(1.0), np.linalg.inv(transform), atol=1e-9)
-    half = _Screw(transform).at(0.5)
+    np.testing.assert_allclose(Screw(transform).at(1.0), transform, atol=1e-9)
+    np.testing.assert_allclose(Screw(transform, -1.0).at(1.0), np.linalg.inv(transform), atol=1e-9)
+    half = Screw(transform).at(0.5)
     np.testing.assert_allclose(half @ half, transform, atol=1e-9)
     slide = np.eye(4)
     slide[:3, 3] = rng.normal(size=3)
-    np.testing.assert_allclose(_Screw(slide).at(0.25)[:3, 3], 0.25 * slide[:3, 3])
+    np.testing.assert_allclose(Screw(slide).at(0.25)[:3, 3], 0.25 * slide[:3, 3])
 
 
 def test_manhattan_frame_finds_a_turned_box():

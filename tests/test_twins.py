@@ -270,7 +270,7 @@ def test_a_step_along_a_neighbouring_surface_is_not_blocked():
     masks); the same sash pushed sideways into its neighbour is blocked."""
     from scipy.spatial import cKDTree
 
-    from sparseart.labelers.correspondence import blocked_step_share
+    from sparseart.geometry.sweep import blocked_step_share
 
     rng = np.random.default_rng(0)
     radius = 0.02

@@ -101,8 +101,10 @@ def _stated_sigmas(joint: Any) -> dict[str, float | None]:
 def _confidence_terms(joint: Any) -> dict[str, float | None]:
     """What the joint's confidence was made of (:func:`sparseart.joints.reliability.confidence`), so a
     bench can study it without rerunning: ``covered_fraction``, ``residual_excess`` (the residual
-    beyond the part's noise floor, in part radii) and ``residual_floor`` (the floor, in part
-    radii). None where the joint does not report them (the ICP peer)."""
+    beyond the part's noise floor, in part radii), ``residual_floor`` (the floor, in part
+    radii) and ``blocked_share`` (the share of a turning part its first steps push into the static
+    part, :mod:`sparseart.joints.sweep_check`). None where the joint does not report them (the ICP
+    peer, slides)."""
     from sparseart.joints.reliability import residual_excess
 
     diagnostics = getattr(joint, "diagnostics", None) or {}
@@ -112,7 +114,8 @@ def _confidence_terms(joint: Any) -> dict[str, float | None]:
     relative = radius is not None and radius > 0 and floor is not None and residual is not None
     return {"covered_fraction": _finite(diagnostics.get("covered_fraction")),
             "residual_excess": residual_excess(residual, floor) / radius if relative else None,
-            "residual_floor": floor / radius if relative else None}
+            "residual_floor": floor / radius if relative else None,
+            "blocked_share": _finite(diagnostics.get("blocked_share"))}
 
 
 def evaluate(result: Articulation, scene: Scene, gt: dict[str, Any]) -> list[dict[str, Any]]:

@@ -295,7 +295,7 @@ CSV_FIELDS = ("object", "setting", "method", "name", "gt_type", "pred_type", "ty
               "axis_deg", "position", "state", "state_along", "gt_state", "render_seconds", "pipeline_seconds",
               *(f"{s}_seconds" for s in STAGES), "n_predicted", "n_warnings", "seed",
               "axis_sigma_deg", "origin_sigma", "state_sigma", "confidence", "covered_fraction", "residual_excess",
-              "residual_floor")
+              "residual_floor", "blocked_share")
 
 
 def rows_csv(rows: list[dict[str, Any]]) -> str:

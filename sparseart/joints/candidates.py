@@ -20,10 +20,12 @@ from sparseart.joints.clean import estimate_normals
 from sparseart.joints.fit import FitConfig, fit_joint
 from sparseart.joints.reliability import HALF_TURN_DEG, MAX_AXIS_SIGMA_DEG
 from sparseart.joints.siblings import slides_like_siblings
+from sparseart.joints.sweep_check import check_turn
 from sparseart.joints.uncertainty import frame_misfit, joint_gap, raise_sigma
 from sparseart.types import JointEstimate, LabelledCloud, PartLabels, PartResult
 
 MIN_PART_POINTS = 20
+SPACING_SAMPLE = 5000   # points whose nearest neighbours give the clouds' spacing (the turn check's radius)
 
 
 def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, joint_type: str = "auto",
@@ -89,16 +91,31 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
                                             {pid: inputs[pid][1] for pid in fitted}, free_type, body_axes)
     for pid, joint in turned_to_slides.items():
         fitted[pid].joint = joint
+    static_both = _static_tree(start, end, labels) if any(r.joint.type == "revolute" for r in fitted.values()) else None
     for pid, result in fitted.items():
         joint = result.joint
         if joint.type == "revolute":
             joint.origin = point_on_line_nearest(joint.origin, joint.axis, object_centre)
+            if static_both is not None:
+                check_turn(joint, *inputs[pid][0], *static_both)
         pairing = float(labels.confidence.get(pid, 1.0))
         if pairing < 1.0:   # look-alike parts that could pair the other way round (the labeler warned)
             joint.diagnostics["pairing_confidence"] = pairing
             joint.confidence *= pairing
         warnings.extend(f"part {pid}: {w}" for w in joint.warnings)
     return results
+
+
+def _static_tree(start: LabelledCloud, end: LabelledCloud, labels: PartLabels) -> tuple[cKDTree, float] | None:
+    """A KD-tree of the static part's points of both states (scene frame) and the clouds' median
+    point spacing, for :func:`~sparseart.joints.sweep_check.check_turn`; None with too few static
+    points. O(N log N)."""
+    static = np.concatenate([start.points[labels.start_part == 0], end.points[labels.end_part == 0]])
+    if len(static) < MIN_PART_POINTS:
+        return None
+    spacing = median_spacing(np.concatenate([start.points, end.points]), sample=SPACING_SAMPLE,
+                             rng=np.random.default_rng(0))
+    return cKDTree(static), spacing
 
 
 def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndarray, end_colors: np.ndarray,

@@ -35,6 +35,7 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ..geometry.clouds import pca_normals
+from ..geometry.sweep import blocked_step_share
 from ..geometry.planes import manhattan_frame
 from ..joints.config import FitConfig
 from ..joints.select import FAR_PIVOT_MAX_TURN_DEG
@@ -60,9 +61,7 @@ TURN_TIE = 0.05             # scores this close count as tied: the smaller rotat
 ICP_POINTS = 600            # refine_icp works on at most this many points per set
 SCREEN_RADII = 3.0          # the quick screen counts points within this many inlier radii ...
 SUBPART_REFINE = 4          # ... and this many of its best hypotheses are refined and scored
-STEP_FRACTIONS = (0.15, 0.3)  # physics: steps along the motion (share of the whole motion) ...
-STEP_SAMPLE = 400           # ... of at most this many points per state
-MIN_STEP_RADII = 3.0        # ... but at least this many inlier radii for the median point
+STEP_SAMPLE = 400           # physics (geometry.sweep): steps of at most this many points per state
 UNMATCHED = 1e3             # cost of a pair that may not be matched
 AMBIGUITY_MARGIN = 0.08     # runner-up pairing within this total cost: the pairing is ambiguous
 
@@ -274,64 +273,14 @@ def register_sets(ctx: PairContext, start_idx: np.ndarray, end_idx: np.ndarray,
     return _register_pair(sub, 0, 0, 0.0, _coarse_samples(sub, 0, 0, rng))
 
 
-def blocked_step_share(transform: np.ndarray, direction: float, points: np.ndarray, radius: float,
-                       near_surface, surface: cKDTree | None = None) -> float:
-    """The largest share of ``points`` that a small step of the motion pushes onto a surface they
-    were not already touching (``near_surface(points) -> (n,) bool``: within ``radius`` of another
-    surface). Steps are ``STEP_FRACTIONS`` of the screw-interpolated motion (``direction`` -1: of
-    its inverse), at least ``MIN_STEP_RADII`` radii for the median point, at most half of it; 0 for
-    motions whose median travel is under two such steps. With ``surface`` (a KD-tree of the points
-    the obstacles belong to), a step that lands on a surface counts only when it moves into it
-    (:func:`moves_into_surface`): a sash sliding past its neighbour at a gap under ``radius`` is not
-    blocked. O(len(STEP_FRACTIONS)) calls of near_surface.
-    """
-    screw = _Screw(transform, direction)
-    travel = float(np.median(np.linalg.norm(apply(screw.at(1.0), points) - points, axis=1)))
-    if travel < 2.0 * MIN_STEP_RADII * radius:
-        return 0.0
-    touching = near_surface(points)
-    least = MIN_STEP_RADII * radius / travel
-    worst = 0.0
-    for fraction in STEP_FRACTIONS:
-        step = min(max(fraction, least), 0.5)
-        stepped = apply(screw.at(step), points)
-        blocked = near_surface(stepped) & ~touching
-        if surface is not None and blocked.any():
-            blocked[blocked] = moves_into_surface(surface, stepped[blocked], stepped[blocked] - points[blocked])
-        worst = max(worst, float(np.mean(blocked)))
-    return worst
-
-
-# A step meeting a surface blocks when |normal . step direction| >= this (15 deg off the surface).
-# 30 deg (0.5) also let a real laptop lid's mirrored flip (84 deg about the wrong edge) sweep the
-# base uncharged: it was chosen beside the true 96 deg turn and the confidence fell 0.68 -> 0.40.
-INTO_SURFACE_SINE = 0.26
-NORMAL_NEIGHBOURS = 8       # points of the surface whose smallest principal axis is its normal
-
-
-def moves_into_surface(surface: cKDTree, points: np.ndarray, displacement: np.ndarray) -> np.ndarray:
-    """(n,) bool: does each step (``displacement``, (n, 3), ending at ``points``) run into the local
-    surface of ``surface``'s points there rather than along it? The surface normal is the smallest
-    principal axis of the ``NORMAL_NEIGHBOURS`` nearest points; into means
-    |normal . direction| >= ``INTO_SURFACE_SINE``. O(n k log N)."""
-    k = min(NORMAL_NEIGHBOURS, surface.n)
-    if k < 3 or len(points) == 0:
-        return np.ones(len(points), dtype=bool)
-    normals = pca_normals(surface.data, points, k, tree=surface)
-    length = np.linalg.norm(displacement, axis=1)
-    direction = displacement / np.maximum(length, 1e-12)[:, None]
-    return np.abs(np.einsum("ni,ni->n", normals, direction)) >= INTO_SURFACE_SINE
-
-
 def blocked_share(ctx: PairContext, i: int, j: int, transform: np.ndarray) -> float:
     """Physics: the share of a part pushed into another surface by a small step of its motion.
 
     From the start state, group i's samples are moved a step along the motion (screw
-    interpolation, ``STEP_FRACTIONS`` of it but at least ``MIN_STEP_RADII`` inlier radii for the
+    interpolation, :func:`~sparseart.geometry.sweep.blocked_step_share`: at least 3 inlier radii for the
     median point); a sample that lands within the inlier radius of a start point outside the group,
-    where it was not already touching one, moving into that surface rather than along it
-    (:func:`moves_into_surface`), is blocked. From the end state, group j's samples step
-    back along the inverse motion the same way. Returns the mean over both states of the largest
+    where it was not already touching one, moving into that surface rather than along it, is
+    blocked. From the end state, group j's samples step back along the inverse motion the same way. Returns the mean over both states of the largest
     blocked share over the steps, in [0, 1]; 0 for motions too small to step. O(S log N) per step.
     """
     shares = []
@@ -403,36 +352,6 @@ def slide_direction(transform: np.ndarray, start_points: np.ndarray) -> np.ndarr
     if pivot_distance <= FitConfig.far_pivot_factor * radius:
         return None
     return displacement / length
-
-
-class _Screw:
-    """Screw interpolation of a rigid motion: x -> p + R(s angle)(x - p) + s slide axis for a
-    share s of the motion (closed form; a pure translation for tiny angles). O(1) per step."""
-
-    def __init__(self, transform: np.ndarray, direction: float = 1.0) -> None:
-        rotvec = Rotation.from_matrix(transform[:3, :3]).as_rotvec()
-        angle = float(np.linalg.norm(rotvec))
-        translation = transform[:3, 3]
-        self.direction = direction
-        if angle < 1e-6:
-            self.axis, self.angle, self.pivot = np.zeros(3), 0.0, np.zeros(3)
-            self.slide_vector = translation.copy()
-            return
-        axis = rotvec / angle
-        slide = float(translation @ axis)
-        perpendicular = translation - slide * axis
-        pivot, *_ = np.linalg.lstsq(np.eye(3) - transform[:3, :3], perpendicular, rcond=1e-6)
-        self.axis, self.angle, self.pivot = axis, angle, pivot
-        self.slide_vector = slide * axis
-
-    def at(self, share: float) -> np.ndarray:
-        """(4, 4) motion for ``share`` of the whole (negative: of the inverse)."""
-        s = share * self.direction
-        transform = np.eye(4)
-        rotation = Rotation.from_rotvec(self.axis * self.angle * s).as_matrix() if self.angle else np.eye(3)
-        transform[:3, :3] = rotation
-        transform[:3, 3] = self.pivot - rotation @ self.pivot + s * self.slide_vector
-        return transform
 
 
 NAMED_ID_SHARE = 0.5        # ids occurring in both states must cover this share of each state's mask points

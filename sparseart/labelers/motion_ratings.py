@@ -13,10 +13,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..geometry.sweep import blocked_step_share
 from ..geometry.transforms import screw_from_transform
 from ..parallel import in_parallel
 from .consistency import HIDDEN, VIOLATION, StateViews
-from .correspondence import PairContext, apply, blocked_step_share, refine_icp, slide_sine_points
+from .correspondence import PairContext, apply, refine_icp, slide_sine_points
 
 HIDDEN_CREDIT = 0.5
 TIGHTEN_POINTS = 600
@@ -289,7 +290,7 @@ class Ratings:
         (own_*) in both states; the part's points (part_*: hit or hidden, they move along) are
         told apart from obstacles by checking the 8 nearest neighbours of a stepped point, and a
         step that meets a surface counts only when it runs into it, not along it (the normal of the
-        cloud there, :func:`~.correspondence.moves_into_surface`)."""
+        cloud there, :func:`~sparseart.geometry.sweep.moves_into_surface`)."""
         shares = []
         for cloud, tree, owned, part, direction in ((self.start, self.start_all, own_start, part_start, 1.0),
                                                     (self.end, self.end_all, own_end, part_end, -1.0)):
