@@ -107,14 +107,14 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
 
 
 def _static_tree(start: LabelledCloud, end: LabelledCloud, labels: PartLabels) -> tuple[cKDTree, float] | None:
-    """A KD-tree of the static part's points of both states (scene frame) and the clouds' median
-    point spacing, for :func:`~sparseart.joints.sweep_check.check_turn`; None with too few static
-    points. O(N log N)."""
+    """A KD-tree of the static part's points of both states (scene frame) and the start cloud's
+    median point spacing (one state's own sampling: the two states' static points can coincide, a
+    still camera's pixels), for :func:`~sparseart.joints.sweep_check.check_turn`; None with too few
+    static points. O(N log N)."""
     static = np.concatenate([start.points[labels.start_part == 0], end.points[labels.end_part == 0]])
     if len(static) < MIN_PART_POINTS:
         return None
-    spacing = median_spacing(np.concatenate([start.points, end.points]), sample=SPACING_SAMPLE,
-                             rng=np.random.default_rng(0))
+    spacing = median_spacing(start.points, sample=SPACING_SAMPLE, rng=np.random.default_rng(0))
     return cKDTree(static), spacing
 
 
