@@ -51,3 +51,24 @@ def test_a_slide_along_its_wall_is_not_checked() -> None:
                           uncertainty={}, residual=0.0, confidence=0.9)
     check_turn(slide, door, door + [0.3, 0.0, 0.0], cKDTree(wall), SPACING)
     assert slide.confidence == 0.9 and "blocked_share" not in slide.diagnostics
+
+
+def test_the_fitter_flags_a_panel_turned_into_its_body_and_not_one_turned_away() -> None:
+    # tests/synthetic.py's panel hangs on the body's front edge (hinge: the z axis at x = y = 0);
+    # turned by +40 deg it swings into the body (y > 0), by -40 deg out in front of it
+    from synthetic import make_clouds
+
+    from sparseart.joints.candidates import fit_parts
+    from sparseart.types import PartLabels, PartSpec
+
+    def fitted(angle_deg: float) -> JointEstimate:
+        start, end, _ = make_clouds("revolute", np.radians(angle_deg))
+        labels = PartLabels(parts=[PartSpec(id=0, role="static"), PartSpec(id=1, role="movable")],
+                            start_part=np.where(start.segment == 2, 1, 0), end_part=np.where(end.segment == 2, 1, 0))
+        return fit_parts(start, end, labels, warnings=[])[1].joint
+
+    into, away = fitted(40.0), fitted(-40.0)
+    assert abs(abs(np.degrees(into.angle)) - 40.0) < 1.0 and abs(abs(np.degrees(away.angle)) - 40.0) < 1.0
+    assert into.diagnostics["blocked_share"] > 0.1 and any("into the static part" in w for w in into.warnings)
+    assert away.diagnostics["blocked_share"] < 0.05 and not any("into the static part" in w for w in away.warnings)
+    assert into.confidence < 0.6 * away.confidence

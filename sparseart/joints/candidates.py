@@ -25,7 +25,7 @@ from sparseart.joints.uncertainty import frame_misfit, joint_gap, raise_sigma
 from sparseart.types import JointEstimate, LabelledCloud, PartLabels, PartResult
 
 MIN_PART_POINTS = 20
-SPACING_SAMPLE = 5000   # points whose nearest neighbours give the clouds' spacing (the turn check's radius)
+SPACING_SAMPLE = 5000   # start points whose nearest neighbours give its spacing (the turn check's radius)
 
 
 def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, joint_type: str = "auto",
@@ -34,7 +34,9 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
     and no joint. Then the parts are read together: a turn that a look-alike sibling's slide
     explains about as well becomes a slide along it
     (:func:`~sparseart.joints.siblings.slides_like_siblings`; only parts whose type was not given).
-    Revolute origins are moved to the axis point nearest the object's median point.
+    Revolute origins are moved to the axis point nearest the object's median point, and a turn
+    whose first steps push its part into the static part (seen in either state) is said and
+    trusted less (:func:`~sparseart.joints.sweep_check.check_turn`).
     A joint's confidence is multiplied by the labeler's trust in its part's pairing
     (``labels.confidence``; ``diagnostics["pairing_confidence"]`` when below 1).
     The stated uncertainty gains the static frame's own error (:func:`~sparseart.joints.uncertainty.
