@@ -35,8 +35,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from ..geometry.clouds import pca_normals
-from ..geometry.sweep import blocked_step_share
 from ..geometry.planes import manhattan_frame
+from ..geometry.sweep import blocked_step_share
 from ..joints.config import FitConfig
 from ..joints.select import FAR_PIVOT_MAX_TURN_DEG
 from ..parallel import in_parallel
@@ -277,11 +277,12 @@ def blocked_share(ctx: PairContext, i: int, j: int, transform: np.ndarray) -> fl
     """Physics: the share of a part pushed into another surface by a small step of its motion.
 
     From the start state, group i's samples are moved a step along the motion (screw
-    interpolation, :func:`~sparseart.geometry.sweep.blocked_step_share`: at least 3 inlier radii for the
-    median point); a sample that lands within the inlier radius of a start point outside the group,
-    where it was not already touching one, moving into that surface rather than along it, is
-    blocked. From the end state, group j's samples step back along the inverse motion the same way. Returns the mean over both states of the largest
-    blocked share over the steps, in [0, 1]; 0 for motions too small to step. O(S log N) per step.
+    interpolation, :func:`~sparseart.geometry.sweep.blocked_step_share`: at least 3 inlier radii
+    for the median point); a sample that lands within the inlier radius of a start point outside
+    the group, where it was not already touching one, moving into that surface rather than along
+    it, is blocked. From the end state, group j's samples step back along the inverse motion the
+    same way. Returns the mean over both states of the largest blocked share over the steps, in
+    [0, 1]; 0 for motions too small to step. O(S log N) per step.
     """
     shares = []
     for state, k, idx, direction in (("start", i, ctx.start_samples[i], 1.0),

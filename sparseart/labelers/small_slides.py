@@ -145,22 +145,24 @@ def small_slides(ratings: Ratings, layers: list, posed: bool = False) -> list[Sl
     claimed = fringe_start.copy()   # a layer's fringe is no part's partner
     found: list[SlidPart] = []
     for slot, piece in enumerate(seen_pieces):
-        best, supports = None, []
+        best, best_support, supports = None, 0.0, []
         for axis, axis_votes in zip(axes, votes):
             for i in _peaks(axis_votes[slot] * _travel_factor(grid, context.diameter), MIN_POINTS):
                 shift = grid[i] * axis
                 landed = _landed(free_tree, end[piece] - shift, hit)
-                supports.append((shift, len(landed) * _travel_factor(np.linalg.norm(shift), context.diameter)))
+                # the slide's support: what it lays (a rated part's hits are exactly these) less its travel charge
+                support = len(landed) * _travel_factor(np.linalg.norm(shift), context.diameter)
+                supports.append((shift, support))
                 rated = _rate(ratings, layers, posed, free_start, free_tree, claimed, piece, shift, landed)
-                if rated is not None and (best is None or _support(rated, context.diameter) > _support(best, context.diameter)):
-                    best = rated
+                if rated is not None and (best is None or support > best_support):
+                    best, best_support = rated, support
         if best is None:
             continue
         transform, partners, hits = best
         rival = max((support for shift, support in supports
                      if np.linalg.norm(shift - transform[:3, 3]) > 2.0 * hit), default=0.0)
         claimed[partners] = True
-        found.append(SlidPart(transform, partners, hits, rival / _support(best, context.diameter)))
+        found.append(SlidPart(transform, partners, hits, rival / best_support))
     return _join_touching(found, start, end, context.radius, hit)
 
 
@@ -181,11 +183,6 @@ def _travel_factor(length, diameter: float):
     for a length or an array of them: of two slides that lay as many points, the shorter wins (a
     grid of wires slid by one more pitch lays its protruding end as well). O(1) per length."""
     return 1.0 - TRAVEL_PENALTY * np.abs(length) / diameter
-
-
-def _support(part: tuple[np.ndarray, np.ndarray, np.ndarray], diameter: float) -> float:
-    """A rated slide's hits times its travel factor (:func:`_travel_factor`). O(1)."""
-    return len(part[2]) * float(_travel_factor(np.linalg.norm(part[0][:3, 3]), diameter))
 
 
 def _landed(free_tree: cKDTree, points: np.ndarray, hit: float) -> np.ndarray:
