@@ -1,7 +1,7 @@
 """How well the reported confidence tells right joints from wrong ones, from bench rows.
 
 Usage: ``python benchmarks/confidence_auroc.py ROWS.json [ROWS.json ...]`` with the ``rows.json``
-of ``sparseart bench`` (or the trimmed copies in ``benchmarks/results/realistic/noise_floor/``).
+of ``sparseart bench`` (the rows of experiment EXP-032 are in the ``notebook-archive`` tag).
 Per file and setting, over the matched sparseart rows: how many joints are right (axis error
 < 10 deg) and wrong, the median confidence of each, and the AUROC of the confidence as a
 right-vs-wrong score (the probability that a random right joint gets a higher confidence than a

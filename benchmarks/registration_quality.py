@@ -7,7 +7,7 @@ share of views registered and of scenes whose states were aligned by features.
 
 MATCHER_SPEC as for ``sparseart run --matcher`` (e.g. xfeat:../shared/models/xfeat.onnx,
 ../shared/models/lighterglue_L3.onnx). Scenes: render them with ``sparseart bench --settings
-realistic`` (cached in OUT/scenes). Results of 2026-11-24: benchmarks/results/realistic/registration/.
+realistic`` (cached in OUT/scenes). Results of 2026-11-24: experiment EXP-014.
 """
 import sys, json, glob, time, numpy as np
 from sparseart.io.scene import load_scene

@@ -240,7 +240,7 @@ def _match_still_end_depth(scene: Scene, lifted: LiftedScene,
     agree between the states, so the part's apparent motion carries less of the warp. Measured on
     the realistic renders (16 objects, seeds 0-3, 3 still views per state, each warped ~2 % per
     state): 69 -> 71 of 84 joints within 10 deg, median axis error 2.36 -> 2.16 deg
-    (benchmarks/results/realistic/still_depth/). Returns the scene and lifted views with the
+    (experiment EXP-046). Returns the scene and lifted views with the
     corrected end views (unchanged when none was corrected) and one DepthRatio per still pair;
     the warnings gain one line per corrected view. O(V H W log(H W)) for the still test plus the
     ratio fits."""

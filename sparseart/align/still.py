@@ -13,7 +13,7 @@ images coincide: their phase-correlation shift is at most ``STILL_MAX_SHIFT_PX``
 views first (no registration error), then the share. :func:`place_through_twins` gives a view
 that was left out of one state the pose of its same-camera twin in the other state.
 
-Measured (benchmarks/results/realistic/still_camera/shares.txt): one camera, 63 view pairs of 21
+Measured (experiment EXP-036, benchmarks/EXPERIMENTS.md): one camera, 63 view pairs of 21
 realistic renders: shift 0.0-1.3 px (median 0.1), 62 pass; 63 pairs of 21 clean renders without
 background: 54 pass (the rest are views a moved door or lid fills: shifts up to 37 px); the two
 real robot captures (static head camera): shift 0.0-0.2 px, 38-44 % agreeing, both pass. Cameras
@@ -198,7 +198,7 @@ def image_shift(start_rgb: np.ndarray, end_rgb: np.ndarray) -> float:
 # A moved part that fills much of the view (a fridge door) drags the whole picture's phase
 # correlation with it: the camera is still judged unmoved when at least STILL_MIN_TILES of the
 # textured tiles of a TILE_GRID x TILE_GRID grid, and STILL_MIN_TILE_SHARE of them, lie still (shift
-# <= STILL_MAX_SHIFT_PX). Measured (benchmarks/results/realistic/siblings_and_tiles/tiles.txt):
+# <= STILL_MAX_SHIFT_PX). Measured (experiment EXP-047):
 # camera moved 10-21 deg, 114 view pairs of 19 clean and 19 realistic renders: at most 2 still
 # tiles; one camera, the pairs a door or a lid fills (whole-picture shift 20-45 px): a realistic
 # fridge 10-12 of 16, a clean dishwasher 4 of 9 (and 2 of 8), a clean laptop 2 of 4.

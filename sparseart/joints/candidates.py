@@ -533,7 +533,7 @@ def along_front_normal(joint: JointEstimate, part_start: np.ndarray, part_end: n
     apart, 6.4 and 2.5 deg off, 14.5 and 10.9 deg from free slides 11.5 and 10.2 deg off, held at
     1.085 and 1.029 x). A free slide within the spread is kept: a clean desk drawer's, 0.8 deg
     off, 2.7 deg from a face read 7.2 deg apart and 1.9 deg off (2026-11-27,
-    ``benchmarks/results/realistic/state_probe/``).
+    experiment EXP-050).
     The held fit's axis sigma gains the normals' disagreement (half the widest angle between
     them, in quadrature), and ``diagnostics["free_slide"]`` keeps the free fit's axis and tilt.
     ``fit_options``: the keyword arguments of the free fit (colours, config, confidences, frame
@@ -737,7 +737,7 @@ def choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
     ``COMPARABLE_RESIDUAL_RATIO`` of the best. If the best is revolute and several comparable
     revolute fits remain, the one whose axis lies nearest the static part wins (a hinge is
     attached to its parent); otherwise the lowest residual. Measured against a tighter window
-    (1.25 x; 2026-11-27, ``benchmarks/results/realistic/face_and_choice/``): the attachment was
+    (1.25 x; 2026-11-27, experiment EXP-043): the attachment was
     right where the residual was not on three robot-shaped microwave doors (a rival 30-34 % worse,
     or the 36.7 deg turn at 1.33 x its 143.9 deg mirror) and wrong on one realistic stapler (a
     rival 35 % worse, 25.6 deg off). When even the nearest hinge lies farther than

@@ -61,7 +61,7 @@ class FitConfig:
         residual, by sqrt(c_start c_end) on top of the distance-proportional weights
         (``optimise.confidence_pair_weights``). Off by default: on 7 rendered realistic objects
         it did not help (posed median axis error 3.64 -> 3.70 deg, mean position 27 -> 29 mm;
-        unposed median 3.10 -> 2.95 deg, no type change; benchmarks/results/confidence_realistic.txt)
+        unposed median 3.10 -> 2.95 deg, no type change; experiment EXP-011)
         -- there the errors come from labels, partial views and per-view warps / scales, which the
         confidence does not single out. False, or no / all-one confidences, fits exactly as without.
     seed: every random choice of the fit.
@@ -109,7 +109,7 @@ class FitConfig:
 
 
 #: Named budgets, each a set of FitConfig fields (the rest keep their defaults), measured on the 16
-#: shared PartNet objects (posed, 3 views, 320x240; benchmarks/results/profile/budgets.txt):
+#: shared PartNet objects (posed, 3 views, 320x240; experiment EXP-010):
 #: fast -- matching and Chamfer samples of 800 points per side, 20k working points per state, no
 #: half-sample refits: ~40 % less fit CPU than default; same success and type accuracy, median
 #: axis error 0.47 deg instead of 0.28.

@@ -27,12 +27,12 @@ their RMS radius; results converted back at the end), each in its own module:
    systematic effects (partial views, label errors, correspondence bias) that a residual-based
    sigma cannot see; the Jacobian sigma alone covered 39 % / 50 % / 72 % of the axis errors at
    1 / 2 / 3 sigma on the 16 PartNet objects, the stated sigma covers 75 % / 90 % / 90 %
-   (benchmarks/results/uncertainty_calibration_v2.txt);
+   (experiment EXP-009);
 6. ``reliability``: warnings with codes and the confidence (read on the residual beyond the part's
    sampling and noise floor, ``noise_floor.residual_floor``).
 
 Cost of one call (W working points per state, n matching / c Chamfer sample per side, p <= 5;
-benchmarks/results/profile/ has the measured curve): step 1 O(W log W) once per part (~0.1 s CPU
+experiment EXP-010 has the measured curve): step 1 O(W log W) once per part (~0.1 s CPU
 at 20k points), then per joint type a few sparse matchings (~O(E sqrt(n)), 2-8 ms at n = 1500)
 and solves O((n + c) p^2) per evaluation (~25-60 ms CPU per type); step 5 O(R p^2) for R residual
 rows plus ``half_samples`` matchings of <= 600 points (~20-30 ms). ``diagnostics["seconds"]`` and

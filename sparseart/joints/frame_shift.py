@@ -10,7 +10,7 @@ along a surface. What does: the RMS distance of the features matched across the 
 step found the two states' depths apart (:func:`depth_ratio_shift`). :func:`add_alignment_shift`
 reads whichever the alignment report holds and widens every joint's origin (and, for feature-aligned
 states, a slide's length) in quadrature; the axis and a revolute angle keep their sigma.
-Measured: ``benchmarks/results/realistic/sigma_honesty/``.
+Measured: experiment EXP-059 (benchmarks/EXPERIMENTS.md).
 """
 from __future__ import annotations
 

@@ -19,7 +19,7 @@ sqrt(2) (:func:`add_labelling_spread`): the axis by the axes' angle, a revolute 
 counterpart's hinge distance from this axis line, the angle or slide by their difference (as an
 unstable joint's is raised to the whole gap). A floor, not a term added in quadrature: the stated
 sigma's calibrated floor was measured on scenes with this noise in them. Measured on
-robot-shaped renders (seeds 0-3; ``benchmarks/results/realistic/labelling_spread/``): the axis
+robot-shaped renders (seeds 0-3; experiment EXP-056): the axis
 1-sigma / 2-sigma covered 55 % / 78 % of the right joints' errors on robot-1view, 68 % / 87 %
 with sensor depth (honest: 63 % / 98 %, the axis error being the norm of two tangent
 components); with the floor 59 % / 88 % and 70 % / 89 %.

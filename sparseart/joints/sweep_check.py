@@ -8,7 +8,7 @@ end points back; :func:`~sparseart.geometry.sweep.blocked_step_share`) and count
 into the static part as seen in EITHER state: the static body is the same in both, and the surface
 a closed door hides (its frame, the oven's inside) is seen only once the door has opened.
 Measured on the robot-shaped renders (posed, one view per state, no masks, seeds 0-3;
-``benchmarks/results/realistic/blocked_turns/``): right turns push at most 9 % of their points
+experiment EXP-068): right turns push at most 9 % of their points
 into the static body, the drop-down oven doors turned inwards 22-24 %.
 """
 from __future__ import annotations

@@ -23,7 +23,7 @@ How ``fit_joint`` states its sigma (``stated_covariance``, variances added): Jac
 spread of re-matched half-sample refits warm-started at the optimum (``half_sample_covariance``:
 sees the correspondence noise of independent samples; one step each) + a calibrated floor
 ``UNCERTAINTY_FLOOR`` x (pair residual / part radius). Measured on the 16
-PartNet objects (``benchmarks/results/uncertainty_calibration.txt``): the two resampling terms are
+PartNet objects (experiment EXP-005): the two resampling terms are
 small next to the true errors (axis 0.02-0.25 deg and 0.03-0.23 deg against errors up to 2.7 deg),
 i.e. most of the real error is a bias shared by every subset, which no resampling can see; the
 floor carries most of the correction.

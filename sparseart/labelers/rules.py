@@ -126,7 +126,7 @@ class RuleBasedLabeler:
         joints, with as many new misses as new hits, and a clean twin-drawer desk lost 2 of 4
         drawers (drawer boxes passing the carcass's opening edges); only after "no part moved" it
         gave 46 -> 49 and 41 -> 43 with no joint lost, and every other setting unchanged
-        (benchmarks/results/realistic/replaced_surfaces/). Costs one pass more (~0.9 s on a
+        (experiment EXP-037). Costs one pass more (~0.9 s on a
         robot view), in those scenes only.
         """
         labels = self._label_pass(start, end, scene, aligned, motion_hints, posed, replaced=False)

@@ -15,7 +15,7 @@ SEGMENT_STRIDE = 1 << 16  # segment id = frame_index * SEGMENT_STRIDE + mask id 
 # Points of frames with a depth confidence map (``conf/NNN.npy``) whose confidence is below this
 # are left out of the labelled clouds (smeared depth edges, hole rims, strongly warped regions);
 # frames without a map lose nothing. 0 = off, the default, because dropping hurt on average
-# (benchmarks/results/confidence_realistic.txt: 7 rendered realistic objects, posed and unposed):
+# (experiment EXP-011: 7 rendered realistic objects, posed and unposed):
 # at 0.15 all three prismatic joints of the posed scenes (and the unposed dishwasher) turned
 # revolute (~85-90 deg off): the dropped points are edges and grazing side walls, unevenly in the
 # two states, and they carry the slide direction; unposed registrations did improve (median axis

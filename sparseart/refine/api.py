@@ -38,7 +38,7 @@ from .joint import JointParams
 class RefineOptions:
     """Defaults chosen for < 2 min per movable part on 2 CPU cores: measured 55-95 s per joint on
     5 PartNet objects (320x240 images, 4 views, 2500 Gaussians per state, crops rendered at 96 px;
-    benchmarks/results/refine_partnet_v4*.txt). Objects with k movable parts take k times that.
+    experiment EXP-002). Objects with k movable parts take k times that.
 
     long_side: rendering resolution (px of the longer image side). max_gaussians: per state.
     *_iters: optimisation steps of each stage (one view per state per step). joint_restarts:
