@@ -107,6 +107,10 @@ def _parser() -> argparse.ArgumentParser:
     bench = commands.add_parser("bench", help="accuracy against run time over rendered objects, with an ICP peer")
     bench.add_argument("--objects", type=Path, nargs="+", default=None,
                        help="object folders (or folders of them); default ../shared/data/partnet")
+    bench.add_argument("--corpus", action="store_true",
+                       help="the whole corpus: ../shared/data/partnet, partnet-more and partnet-twins")
+    bench.add_argument("--jobs", type=int, default=None, metavar="N",
+                       help="scenes evaluated side by side in N processes (default: every core; same rows as 1)")
     bench.add_argument("--out", type=Path, default=Path("bench_out"), help="results and scene cache folder")
     bench.add_argument("--quick", action="store_true", help="about a minute: 3 small objects, default setting")
     bench.add_argument("--seeds", type=int, nargs="+", default=[0], help="render/run seeds (default 0)")
@@ -298,14 +302,16 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
         print(run_stability(args.out, quick=args.quick))
         return 0
-    from sparseart.bench.grid import QUICK_OBJECTS, find_objects, report_text, run_bench
+    from sparseart.bench.grid import QUICK_OBJECTS, corpus_dirs, default_jobs, find_objects, report_text, run_bench
 
-    objects = find_objects(args.objects)
+    if args.jobs is not None and args.jobs < 1:
+        raise SceneError(f"--jobs {args.jobs}: must be at least 1")
+    objects = find_objects([*(args.objects or []), *(corpus_dirs() if args.corpus else [])] or None)
     if args.quick:
         small = [o for o in objects if o.name in QUICK_OBJECTS]
         objects = small or objects[:3]
     result = run_bench(objects, args.out, seeds=args.seeds, quick=args.quick, peer=not args.no_peer,
-                       names=args.settings)
+                       names=args.settings, jobs=args.jobs or default_jobs())
     print(report_text(result))
     print(f"wrote {args.out}/table.txt, rows.csv/json, summary.csv/json, error_vs_time.png, error_vs_factor.png")
     return 0 if result.rows else 1

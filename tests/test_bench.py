@@ -180,10 +180,16 @@ def test_ratio_note_names_the_more_accurate_method():
 @requires_partnet
 def test_bench_on_one_object_writes_everything(tmp_path):
     obj = PARTNET_DIR / "toaster_press_103486"
-    result = run_bench([obj], tmp_path, settings=[BenchSetting(name="default")])
+    # two scenes in two worker processes: the rows must be those of a sequential run (checked below)
+    result = run_bench([obj], tmp_path, settings=[BenchSetting(name="default"), BenchSetting(views=1, name="views1")],
+                       jobs=2)
     assert not result.failures, result.failures
     assert {r["method"] for r in result.rows} == {"sparseart", "icp_peer"}
-    assert {(s["setting"], s["method"]) for s in result.summary} == {("default", "sparseart"), ("default", "icp_peer")}
+    assert [r["setting"] for r in result.rows] == ["default", "default", "views1", "views1"]  # the sequential order
+    assert {(s["setting"], s["method"]) for s in result.summary} == {
+        (name, method) for name in ("default", "views1") for method in ("sparseart", "icp_peer")}
+    assert {(s["category"], s["method"]) for s in result.per_category if s["setting"] == "default"} == {
+        ("toaster", "sparseart"), ("toaster", "icp_peer")}
     ours = next(s for s in result.summary if s["method"] == "sparseart")
     assert ours["type_accuracy"] == 1.0 and ours["axis_deg_median"] < 5.0 and ours["fit_seconds_median"] > 0
     # every stated sigma beside its error, and how often it covers it (the toaster's lever slides)
@@ -198,6 +204,10 @@ def test_bench_on_one_object_writes_everything(tmp_path):
     assert "sparseart vs ICP peer" in (tmp_path / "table.txt").read_text()
     again = evaluate_object(obj, tmp_path / "scenes", BenchSetting(name="default"))  # the render is cached
     assert again[0]["render_seconds"] == 0.0
+    timing = ("render_seconds", "pipeline_seconds", "stage_seconds", "category")
+    assert [{k: v for k, v in r.items() if k not in timing} for r in again] == \
+        [{k: v for k, v in r.items() if k not in timing} for r in result.rows[:1]]
+    assert "the whole motion right per category" in (tmp_path / "table.txt").read_text()
 
 
 def test_cli_bench_rejects_missing_objects(tmp_path, capsys):
@@ -264,3 +274,40 @@ def test_extra_parts_count_predictions_matched_to_no_true_joint():
     assert summary_table(summary).splitlines()[0].split()[-1] == "extra"
     assert summary_table(summary).splitlines()[1].split()[-1] == "3"
     assert "seed" in rows_csv(rows).splitlines()[0].split(",")
+
+
+def test_categories_are_read_off_the_object_folder_names():
+    from sparseart.bench.grid import category_of
+
+    assert category_of("laptop_rotate_10040") == "laptop"
+    assert category_of("oven_7179_multi") == "oven"
+    assert category_of("washing_machine_103508") == "washing_machine"
+    assert category_of("toaster_press_103486") == "toaster"
+    assert category_of("trash_can_102181") == "trash_can"
+
+
+def test_the_whole_motion_needs_the_hinge_line_and_the_turn_too():
+    """The whole motion right (what a robot acts on): the axis alone passes a door turned the
+    other way about the right line, and a right turn about a line beside the hinge."""
+    from sparseart.bench.grid import aggregate, category_table
+    from sparseart.bench.metrics import SUCCESS_POSITION, motion_right, summarise
+
+    def row(obj: str, method: str = "sparseart", **changes) -> dict:
+        base = {"object": obj, "setting": "default", "method": method, "config": {"seed": 0}, "name": "joint_0",
+                "gt_type": "revolute", "type_correct": True, "axis_deg": 1.0, "position": 0.01, "state": 2.0,
+                "gt_state": 90.0, "pipeline_seconds": 1.0, "stage_seconds": {}}
+        return base | changes
+
+    right = row("door_1")
+    reversed_turn = row("door_2", state=175.0)
+    beside = row("door_3", position=SUCCESS_POSITION * 1.2)
+    slide = row("drawer_4", gt_type="prismatic", position=None, state=0.01, gt_state=0.3)
+    assert [motion_right(r) for r in (right, reversed_turn, beside, slide)] == [True, False, False, True]
+    summary = summarise([right, reversed_turn, beside, slide])
+    assert summary["success_rate"] == 1.0 and summary["full_success_rate"] == 0.75
+    assert summary["motion_success_rate"] == 0.5
+    assert motion_right({k: v for k, v in right.items() if k != "gt_state"}) is None
+    rows = [right, reversed_turn, beside, slide, row("door_1", method="icp_peer", axis_deg=20.0)]
+    per_category = aggregate(rows, ("category", "setting", "method"))
+    table = category_table(per_category)
+    assert "door" in table and "0.33/0.00 3" in table and "1.00/- 1" in table

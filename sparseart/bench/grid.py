@@ -166,25 +166,87 @@ class BenchResult:
     rows: list[dict[str, Any]]
     summary: list[dict[str, Any]]
     per_object: list[dict[str, Any]]
+    per_category: list[dict[str, Any]]
     skipped: list[str]
     failures: list[str]
     seconds: float
 
 
+def category_of(object_name: str) -> str:
+    """An object's category from its folder name: the part before its PartNet id, without the
+    task verb (``laptop_rotate_10040`` -> ``laptop``, ``oven_7179_multi`` -> ``oven``,
+    ``washing_machine_103508`` -> ``washing_machine``)."""
+    import re
+
+    head = re.split(r"_\d+", object_name, maxsplit=1)[0]
+    return re.sub(r"_(rotate|press|push|swing|slide|open|turn)$", "", head) or object_name
+
+
+def _evaluate_group(tasks: list[tuple[int, Path, Path, BenchSetting, bool]]) -> list[tuple[int, list, str | None]]:
+    """Evaluate tasks that share one rendered scene folder, in order (one process renders it).
+    Returns (task index, rows, failure line or None) per task."""
+    out = []
+    for index, object_dir, scenes, setting, peer in tasks:
+        try:
+            rows = evaluate_object(object_dir, scenes, setting, peer=peer)
+            for row in rows:
+                row["category"] = category_of(object_dir.name)
+            out.append((index, rows, None))
+        except Exception as error:  # noqa: BLE001 - one broken object must not end a long run
+            out.append((index, [], f"{object_dir.name} [{setting.name}]: {type(error).__name__}: {error}"))
+    return out
+
+
+def default_jobs() -> int:
+    """Worker processes for the bench: the machine's cores."""
+    import os
+
+    return max(1, os.cpu_count() or 1)
+
+
 def run_grid(objects: list[Path], out_dir: Path, settings: list[BenchSetting], peer: bool = True,
-             progress: Progress | None = None) -> tuple[list[dict[str, Any]], list[str]]:
+             progress: Progress | None = None, jobs: int = 1) -> tuple[list[dict[str, Any]], list[str]]:
     """Evaluate every object under every setting. Returns (rows, failure lines). An object that
-    fails one setting (bad mesh, pipeline error) is reported and skipped, the rest go on."""
-    rows, failures = [], []
+    fails one setting (bad mesh, pipeline error) is reported and skipped, the rest go on.
+
+    ``jobs`` > 1 runs the scenes in that many worker processes (spawned, so no state leaks between
+    them). Tasks that share a rendered scene folder (same object and render key, e.g. ``default``
+    and ``no-masks``) run in one worker, in order, so no folder is rendered twice at once. Rows come
+    back in the sequential run's order whatever the schedule, and every stage is deterministic
+    (:mod:`sparseart.parallel`), so the rows are those of ``jobs=1``. Wall time ~ total / jobs."""
     scenes = out_dir / "scenes"
-    for setting in settings:
-        for object_dir in objects:
-            try:
-                rows.extend(evaluate_object(object_dir, scenes, setting, peer=peer))
-            except Exception as error:  # noqa: BLE001 - one broken object must not end a long run
-                failures.append(f"{object_dir.name} [{setting.name}]: {type(error).__name__}: {error}")
+    tasks = [(i, object_dir, scenes, setting, peer)
+             for i, (setting, object_dir) in enumerate((s, o) for s in settings for o in objects)]
+    groups: dict[str, list] = {}
+    for task in tasks:
+        groups.setdefault(f"{task[1].name}_{task[3].render_key()}", []).append(task)
+    results: dict[int, tuple[list, str | None]] = {}
+
+    def collect(group_out: list[tuple[int, list, str | None]]) -> None:
+        for index, rows, failure in group_out:
+            results[index] = (rows, failure)
             if progress:
-                progress.step(f"{object_dir.name} [{setting.name}]")
+                progress.step(f"{tasks[index][1].name} [{tasks[index][3].name}]")
+
+    if jobs <= 1 or len(groups) <= 1:
+        for group in groups.values():
+            collect(_evaluate_group(group))
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(max_workers=min(jobs, len(groups)), mp_context=context) as pool:
+            # longest groups first: the last worker to finish is not the one that got the big tail
+            ordered = sorted(groups.values(), key=len, reverse=True)
+            for future in as_completed([pool.submit(_evaluate_group, g) for g in ordered]):
+                collect(future.result())
+    rows, failures = [], []
+    for index in sorted(results):
+        group_rows, failure = results[index]
+        rows.extend(group_rows)
+        if failure:
+            failures.append(failure)
     return rows, failures
 
 
@@ -227,7 +289,8 @@ def aggregate(rows: list[dict[str, Any]], keys: tuple[str, ...]) -> list[dict[st
     """``metrics.summarise`` plus stage timings per group of ``keys`` (e.g. setting, method)."""
     groups: dict[tuple, list[dict[str, Any]]] = {}
     for row in rows:
-        groups.setdefault(tuple(row[k] for k in keys), []).append(row)
+        groups.setdefault(tuple(row.get("category") or category_of(row["object"]) if k == "category" else row[k]
+                                for k in keys), []).append(row)
     out = []
     for key, group in groups.items():
         entry = dict(zip(keys, key))
@@ -249,18 +312,20 @@ def _fmt(value: Any, digits: int = 3) -> str:
 
 
 def summary_table(summary: list[dict[str, Any]]) -> str:
-    """One line per setting and method: type accuracy, success, full success (``full``: the type
+    """One line per setting and method: the whole motion right first (``motion``: type, axis,
+    angle or slide and, for a turn, the hinge line, :func:`~sparseart.bench.metrics.motion_right`), type accuracy, success, full success (``full``: the type
     and the state right too, :func:`~sparseart.bench.metrics.summarise`), axis mean/median, position median,
     state medians, median seconds, the share of successful joints whose axis error is within the
     stated 1-sigma (``1σ cov``; ~63 % is honest for the axis angle), the same for the hinge line's
     position and the angle or slide (``pos 1σ``, at least ~63 %; ``st 1σ``, ~68 %) and the movable parts
     reported that match no true joint (``extra``, :func:`extra_parts`)."""
-    header = (f"{'setting':17s} {'method':9s} {'n':>3s} {'type':>5s} {'succ':>5s} {'full':>5s} {'axis mean':>9s} "
+    header = (f"{'setting':17s} {'method':9s} {'n':>3s} {'motion':>6s} {'type':>5s} {'succ':>5s} {'full':>5s} {'axis mean':>9s} "
               f"{'axis med':>8s} {'pos med':>8s} {'rev° med':>8s} {'pris med':>8s} {'sec med':>7s} {'1σ cov':>6s} "
               f"{'pos 1σ':>6s} {'st 1σ':>6s} {'extra':>5s}")
     lines = [header]
     for s in summary:
-        lines.append(f"{s['setting']:17s} {s['method']:9s} {s['count']:3d} {_fmt(s['type_accuracy'], 2):>5s} "
+        lines.append(f"{s['setting']:17s} {s['method']:9s} {s['count']:3d} "
+                     f"{_fmt(s.get('motion_success_rate'), 2):>6s} {_fmt(s['type_accuracy'], 2):>5s} "
                      f"{_fmt(s['success_rate'], 2):>5s} {_fmt(s.get('full_success_rate'), 2):>5s} "
                      f"{_fmt(s['axis_deg_mean'], 2):>9s} "
                      f"{_fmt(s['axis_deg_median'], 2):>8s} {_fmt(s['position_median'], 4):>8s} "
@@ -268,6 +333,30 @@ def summary_table(summary: list[dict[str, Any]]) -> str:
                      f"{_fmt(s['seconds_median'], 2):>7s} {_fmt(s.get('sigma_coverage'), 2):>6s} "
                      f"{_fmt(s.get('position_sigma_coverage'), 2):>6s} {_fmt(s.get('state_sigma_coverage'), 2):>6s} "
                      f"{_fmt(s.get('extra_parts')):>5s}")
+    return "\n".join(lines)
+
+
+def category_table(per_category: list[dict[str, Any]]) -> str:
+    """The whole motion right per category and setting, sparseart beside the ICP peer: one line per
+    category, one column per setting (``ours/peer`` of ``n`` joints). Empty without categories."""
+    if not per_category:
+        return ""
+    settings = list(dict.fromkeys(s["setting"] for s in per_category))
+    by = {(s["category"], s["setting"], s["method"]): s for s in per_category}
+    categories = sorted({s["category"] for s in per_category})
+    width = max(15, *(len(c) for c in categories))
+    lines = [f"{'category':{width}s} " + " ".join(f"{name[:17]:>17s}" for name in settings),
+             f"{'':{width}s} " + " ".join(f"{'motion ours/peer n':>17s}" for _ in settings)]
+    for category in categories:
+        cells = []
+        for setting in settings:
+            ours, peer = by.get((category, setting, METHOD_SPARSEART)), by.get((category, setting, METHOD_PEER))
+            if ours is None:
+                cells.append(f"{'-':>17s}")
+                continue
+            peer_text = _fmt(peer.get("motion_success_rate"), 2) if peer else "-"
+            cells.append(f"{_fmt(ours.get('motion_success_rate'), 2) + '/' + peer_text + ' ' + str(ours['count']):>17s}")
+        lines.append(f"{category:{width}s} " + " ".join(cells))
     return "\n".join(lines)
 
 
@@ -291,7 +380,7 @@ def ratio_note(summary: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-CSV_FIELDS = ("object", "setting", "method", "name", "gt_type", "pred_type", "type_correct", "unmatched",
+CSV_FIELDS = ("object", "category", "setting", "method", "name", "gt_type", "pred_type", "type_correct", "unmatched",
               "axis_deg", "position", "state", "state_along", "gt_state", "render_seconds", "pipeline_seconds",
               *(f"{s}_seconds" for s in STAGES), "n_predicted", "n_warnings", "seed",
               "axis_sigma_deg", "origin_sigma", "state_sigma", "confidence", "covered_fraction", "residual_excess",
@@ -328,9 +417,10 @@ def machine_line() -> str:
 def run_bench(objects: list[Path], out_dir: Path, seeds: list[int] | None = None, quick: bool = False,
               peer: bool = True, stream: TextIO | None = None,
               plots: bool = True, settings: list[BenchSetting] | None = None,
-              names: Sequence[str] | None = None) -> BenchResult:
+              names: Sequence[str] | None = None, jobs: int = 1) -> BenchResult:
     """The whole benchmark: grid x seeds x objects, outputs written into ``out_dir`` (atomically,
-    file by file). ``settings`` overrides the grid (tests). Returns the rows and summaries."""
+    file by file). ``settings`` overrides the grid (tests); ``jobs`` worker processes
+    (:func:`run_grid`). Returns the rows and summaries (per setting, object and category)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     seeds = seeds or [0]
@@ -341,10 +431,11 @@ def run_bench(objects: list[Path], out_dir: Path, seeds: list[int] | None = None
         all_settings.extend(replace(s, seed=seed) for s in grid)
     began = time.perf_counter()
     progress = Progress(len(all_settings) * len(objects), stream)
-    rows, failures = run_grid(objects, out_dir, all_settings, peer=peer, progress=progress)
+    rows, failures = run_grid(objects, out_dir, all_settings, peer=peer, progress=progress, jobs=jobs)
     summary = aggregate(rows, ("setting", "method")) if rows else []
     per_object = aggregate(rows, ("object", "setting", "method")) if rows else []
-    result = BenchResult(rows, summary, per_object, skipped, failures, time.perf_counter() - began)
+    per_category = aggregate(rows, ("category", "setting", "method")) if rows else []
+    result = BenchResult(rows, summary, per_object, per_category, skipped, failures, time.perf_counter() - began)
     write_outputs(result, out_dir, plots=plots)
     return result
 
@@ -352,6 +443,9 @@ def run_bench(objects: list[Path], out_dir: Path, seeds: list[int] | None = None
 def report_text(result: BenchResult) -> str:
     parts = [f"# sparseart bench, {machine_line()}; wall {result.seconds:.0f}s; "
              "positions in raw object units (not x10)", summary_table(result.summary)]
+    categories = category_table(result.per_category)
+    if categories:
+        parts += ["", "the whole motion right per category (sparseart/peer, joints):", categories]
     note = ratio_note(result.summary)
     if note:
         parts += ["", "sparseart vs ICP peer:", note]
@@ -372,12 +466,26 @@ def write_outputs(result: BenchResult, out_dir: Path, plots: bool = True) -> lis
     write_json_atomic(out_dir / "rows.json", clean_rows)
     write_json_atomic(out_dir / "summary.json", {"machine": machine_line(), "seconds": result.seconds,
                                                  "summary": result.summary, "per_object": result.per_object,
+                                                 "per_category": result.per_category,
                                                  "skipped": result.skipped, "failures": result.failures})
     written += [out_dir / "rows.json", out_dir / "summary.json"]
     if plots and result.summary:
         written.append(plot_error_vs_time(result.summary, out_dir / "error_vs_time.png"))
         written.append(plot_error_vs_factor(result.summary, out_dir / "error_vs_factor.png"))
     return written
+
+
+CORPUS = ("partnet", "partnet-more", "partnet-twins")
+"""The corpus under ``../shared/data``: the 16 shared objects, 46 more of 14 categories, and 3
+whose moving parts look alike."""
+
+
+def corpus_dirs() -> list[Path]:
+    """The corpus folders that exist under ``../shared/data`` (SceneError when none does)."""
+    found = [shared_dir() / "data" / name for name in CORPUS if (shared_dir() / "data" / name).is_dir()]
+    if not found:
+        raise SceneError(f"{shared_dir() / 'data'}: none of the corpus folders {', '.join(CORPUS)} found")
+    return found
 
 
 def find_objects(dirs: list[Path] | None) -> list[Path]:

@@ -31,6 +31,7 @@ from scipy.spatial.transform import Rotation
 __all__ = [
     "PARALLEL_EPS",
     "SUCCESS_AXIS_DEG",
+    "SUCCESS_POSITION",
     "UNMATCHED_AXIS_DEG",
     "axis_angle_error_deg",
     "axis_position_error",
@@ -44,6 +45,7 @@ __all__ = [
     "sample_mesh_points",
     "chamfer_cost_matrix",
     "match_parts",
+    "motion_right",
     "summarise",
 ]
 
@@ -58,6 +60,10 @@ SUCCESS_STATE_DEG = 10.0
 
 SUCCESS_STATE_SHARE = 0.1
 """... or slides to within this share of the true travel."""
+
+SUCCESS_POSITION = 0.05
+"""The whole motion right also puts a revolute hinge line within this distance of the true one
+(raw object units, :func:`axis_position_error`): the line a robot pulls about."""
 
 UNMATCHED_AXIS_DEG = 90.0
 """Axis angle error charged to a ground-truth part that no prediction was matched to."""
@@ -449,6 +455,18 @@ def _fully_right(e: Mapping[str, Any]) -> bool | None:
     return float(e["state"]) < limit
 
 
+def motion_right(e: Mapping[str, Any]) -> bool | None:
+    """The whole motion right (:func:`summarise`'s ``motion_success_rate``): :func:`_fully_right`
+    and, for a revolute truth, the hinge line within ``SUCCESS_POSITION`` of the true one (a
+    revolute row without ``position`` -- unmatched -- is wrong). None without ``gt_state``."""
+    full = _fully_right(e)
+    if not full:
+        return full
+    if _gt_type(e) != "revolute":
+        return True
+    return e.get("position") is not None and float(e["position"]) < SUCCESS_POSITION
+
+
 def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Aggregate per-joint error dicts (from :func:`joint_errors` / :func:`unmatched_joint_errors`).
 
@@ -462,6 +480,8 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
       ``SUCCESS_STATE_DEG`` (revolute) or ``SUCCESS_STATE_SHARE`` of the true travel (prismatic):
       the axis alone passes a door turned the wrong way about the right line, or a slide of the
       wrong length. None when a row carries no ``gt_state`` (rows from before it was recorded).
+    * ``motion_success_rate``: the whole motion right (:func:`motion_right`): the full success
+      and, for revolute joints, the hinge line within ``SUCCESS_POSITION`` object units.
     * ``axis_deg_mean``, ``axis_deg_median``: degrees, over all joints.
     * ``position_mean``, ``position_median``: object units (not x10), over revolute gt joints.
     * ``state_revolute_deg_mean`` / ``_median``: degrees, over revolute gt joints.
@@ -495,8 +515,10 @@ def summarise(errors: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
         else:
             st_pri.append(float(e["state"]))
     full = [_fully_right(e) for e in errors]
+    motion = [motion_right(e) for e in errors]
     out: dict[str, Any] = {
         "count": n,
+        "motion_success_rate": (sum(motion) / n) if n and all(m is not None for m in motion) else None,
         "full_success_rate": (sum(full) / n) if n and all(f is not None for f in full) else None,
         "n_revolute": len(st_rev),
         "n_prismatic": len(st_pri),
