@@ -210,7 +210,8 @@ class _SecondOpinion:
 
         def label_and_fit():
             labels = other.label(start, end, scene, aligned=True, motion_hints=hints, posed=posed)
-            return labels, fit_parts(start, end, labels, joint_type=options.joint_type, config=config, warnings=[])
+            return labels, fit_parts(start, end, labels, joint_type=options.joint_type, config=config, warnings=[],
+                                     scene=scene)
 
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="second_opinion")
         self._future = self._pool.submit(label_and_fit)
@@ -372,7 +373,7 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
     with clock.stage("fit", "joint type given: classification skipped" if known_type
                      else "fitting revolute and prismatic, choosing by penalised residual"):
         parts = fit_parts(start, end, labels, joint_type=options.joint_type,
-                          config=replace(options.fit or FitConfig(), seed=seed), warnings=warnings)
+                          config=replace(options.fit or FitConfig(), seed=seed), warnings=warnings, scene=scene)
         add_alignment_shift(parts, registration, start, labels, scene)
     if second is not None and _labelled_by_motion(labels):
         with clock.stage("second_opinion", "no masks: labelled and fitted again with another seed, in a thread "

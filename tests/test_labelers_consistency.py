@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sparseart.labelers.consistency import CONSISTENT, HIDDEN, VIOLATION, state_views, visible_fraction
+from sparseart.geometry.free_space import CONSISTENT, HIDDEN, VIOLATION, state_views, visible_fraction
 from sparseart.geometry.sweep import Screw
 from sparseart.labelers.correspondence import (Assignment, Group, PairCandidate, assign,
                                                distinct_by_masks, mask_agreement, prefer_small_turns)

@@ -18,25 +18,28 @@ from sparseart.geometry.transforms import axis_angle_deg
 from sparseart.joints.body_axes import along_body_axes, static_body_axes
 from sparseart.joints.clean import estimate_normals
 from sparseart.joints.fit import FitConfig, fit_joint
+from sparseart.joints.free_space_check import check_free_space, scene_views
 from sparseart.joints.reliability import HALF_TURN_DEG, MAX_AXIS_SIGMA_DEG
 from sparseart.joints.siblings import slides_like_siblings
 from sparseart.joints.sweep_check import check_turn
 from sparseart.joints.uncertainty import frame_misfit, joint_gap, raise_sigma
-from sparseart.types import JointEstimate, LabelledCloud, PartLabels, PartResult
+from sparseart.types import JointEstimate, LabelledCloud, PartLabels, PartResult, Scene
 
 MIN_PART_POINTS = 20
 SPACING_SAMPLE = 5000   # start points whose nearest neighbours give its spacing (the turn check's radius)
 
 
 def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, joint_type: str = "auto",
-              config: FitConfig | None = None, warnings: list[str]) -> list[PartResult]:
+              config: FitConfig | None = None, warnings: list[str], scene: Scene | None = None) -> list[PartResult]:
     """Fit every movable part's joint (:func:`fit_part`); parts with too few points get a warning
     and no joint. Then the parts are read together: a turn that a look-alike sibling's slide
     explains about as well becomes a slide along it
     (:func:`~sparseart.joints.siblings.slides_like_siblings`; only parts whose type was not given).
     Revolute origins are moved to the axis point nearest the object's median point, and a turn
     whose first steps push its part into the static part (seen in either state) is said and
-    trusted less (:func:`~sparseart.joints.sweep_check.check_turn`).
+    trusted less (:func:`~sparseart.joints.sweep_check.check_turn`); with the ``scene``'s depth
+    images, a turn that puts its part where the cameras saw empty space gets the hinge line and
+    angle the views contradict least (:func:`~sparseart.joints.free_space_check.check_free_space`).
     A joint's confidence is multiplied by the labeler's trust in its part's pairing
     (``labels.confidence``; ``diagnostics["pairing_confidence"]`` when below 1).
     The stated uncertainty gains the static frame's own error (:func:`~sparseart.joints.uncertainty.
@@ -93,11 +96,15 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
                                             {pid: inputs[pid][1] for pid in fitted}, free_type, body_axes)
     for pid, joint in turned_to_slides.items():
         fitted[pid].joint = joint
-    static_both = _static_tree(start, end, labels) if any(r.joint.type == "revolute" for r in fitted.values()) else None
+    turns = any(r.joint.type == "revolute" for r in fitted.values())
+    static_both = _static_tree(start, end, labels) if turns else None
+    views = scene_views(start, end, scene, static_mask) if turns else None
     for pid, result in fitted.items():
         joint = result.joint
         if joint.type == "revolute":
             joint.origin = point_on_line_nearest(joint.origin, joint.axis, object_centre)
+            if views is not None:
+                check_free_space(joint, *inputs[pid][0], views)
             if static_both is not None:
                 check_turn(joint, *inputs[pid][0], *static_both)
         pairing = float(labels.confidence.get(pid, 1.0))

@@ -41,7 +41,7 @@ from ..joints.config import FitConfig
 from ..joints.select import FAR_PIVOT_MAX_TURN_DEG
 from ..parallel import in_parallel
 from ..types import LabelledCloud
-from .consistency import StateViews, visible_fraction
+from ..geometry.free_space import StateViews, visible_fraction
 
 TRAVEL_PENALTY = 0.25       # cost per object diameter a pairing moves its points
 PHYSICS_WEIGHT = 1.5        # cost per share of a part pushed into a surface by a step of its motion
@@ -235,7 +235,7 @@ def set_score(start: LabelledCloud, end: LabelledCloud, source_idx: np.ndarray, 
     source_idx / target_idx: sample indices (into the state clouds); source_tree / target_tree:
     KD-trees over ALL points of the start / end set, the latter in the order of ``target_members``
     (their indices). Forward: the share of moved start samples landing within ``radius`` of the
-    end set among those the end views could judge (:func:`~.consistency.visible_fraction`; all
+    end set among those the end views could judge (:func:`~sparseart.geometry.free_space.visible_fraction`; all
     without views); backward the same for the end samples moved back. Colour: 1 - 0.5 min(1,
     mean |difference| / 0.25) over the forward hits. O(S (log M + V)).
     """

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 from ..geometry.sweep import blocked_step_share
 from ..geometry.transforms import screw_from_transform
 from ..parallel import in_parallel
-from .consistency import HIDDEN, VIOLATION, StateViews
+from ..geometry.free_space import HIDDEN, VIOLATION, StateViews
 from .correspondence import PairContext, apply, refine_icp, slide_sine_points
 
 HIDDEN_CREDIT = 0.5

@@ -16,7 +16,7 @@ Steps (both clouds in one frame):
    need not agree across images).
 3. Across states, start and end groups are paired as one assignment problem
    (:mod:`.correspondence`): each plausible pair is registered coarse-to-fine and costed by
-   appearance over what the other state's views could see (:mod:`.consistency`), displacement
+   appearance over what the other state's views could see (:mod:`sparseart.geometry.free_space`), displacement
    relative to the object, whether one joint anchored on the static body can make the motion, and
    mask-id agreement; the Hungarian algorithm pairs them, and a runner-up pairing within a small
    cost is reported as an ambiguity (warning, lower confidence, runner-up in the diagnostics).
@@ -44,7 +44,7 @@ from sparseart.geometry.clouds import median_spacing, normals_with_variation, ra
 from sparseart.geometry.sampling import random_subset
 from ..types import LabelledCloud, PartLabels, PartSpec, Scene
 from .base import TooLittleToLabel
-from .consistency import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
+from ..geometry.free_space import CONSISTENT, HIDDEN, VIOLATION, StateViews, state_views
 from .correspondence import (AMBIGUITY_MARGIN, Group, PairContext, apply, assign, distinct_by_masks,
                              mask_agreement, motion_size, named_mask_ids, pair_score, prefer_small_turns, score_pairs)
 from .mask_repair import repair_merged_masks, split_mask_ids

@@ -60,7 +60,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..geometry.clouds import nearest_gap, radius_components
-from .consistency import VIOLATION
+from ..geometry.free_space import VIOLATION
 from .correspondence import TRAVEL_PENALTY
 from .motion_candidates import grouped_slide_votes
 from .motion_ratings import Ratings, detached

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..types import LabelledCloud, Scene
+from sparseart.types import LabelledCloud, Scene
 
 MIN_VIEW_POINTS = 50          # a frame with fewer cloud points gives no view
 EMPTY_DILATION_PIXELS = 2     # invalid depth farther than this from any valid pixel = seen empty
