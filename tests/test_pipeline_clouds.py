@@ -36,6 +36,25 @@ def test_mock_labeler_auto_type(kind, amount) -> None:
     assert [s.name for s in result.stages if s.ran] == ["label", "fit"]
 
 
+@pytest.mark.parametrize("kind,amount", CASES[1:])
+def test_the_type_comes_with_its_reason(kind, amount) -> None:
+    """articulation.json and the CLI line say why a joint has its type: the type test's reading
+    (both hypotheses' BIC) or the candidate search's residuals, or that the type was given."""
+    from sparseart.io.articulation import articulation_to_dict, summary_lines
+
+    start, end, truth = make_clouds(kind, amount)
+    result = run_clouds(start, end, labeler=MockLabeler({1: 0, 2: 1}))
+    evidence = articulation_to_dict(result)["joints"][0]["evidence"]
+    assert evidence["type_reason"] and ("BIC" in evidence["type_reason"] or "residual" in evidence["type_reason"])
+    if "bic_revolute" in evidence:
+        better = "bic_revolute" if kind == "revolute" else "bic_prismatic"
+        worse = "bic_prismatic" if kind == "revolute" else "bic_revolute"
+        assert evidence[better] < evidence[worse]
+    assert f"  why {kind}: {evidence['type_reason']}" in summary_lines(result)
+    given = run_clouds(start, end, labeler=MockLabeler({1: 0, 2: 1}), joint_type=kind)
+    assert articulation_to_dict(given)["joints"][0]["evidence"]["type_reason"] == "given by the user (joint_type)"
+
+
 @pytest.mark.parametrize("kind,amount", CASES)
 def test_mock_labeler_known_type_skips_classification(kind, amount) -> None:
     start, end, truth = make_clouds(kind, amount, seed=3)

@@ -37,9 +37,37 @@ def joint_to_dict(part_id: int, parent: int, joint: JointEstimate) -> dict[str, 
     entry["uncertainty"] = {k: _finite(v) for k, v in joint.uncertainty.items()}
     entry["residual"] = _finite(joint.residual)
     entry["confidence"] = _finite(joint.confidence)
+    entry["evidence"] = joint_evidence(joint)
     if "refine" in joint.diagnostics:  # the refinement stage's before/after values and seconds
         entry["refine"] = _jsonable(joint.diagnostics["refine"])
     return entry
+
+
+# What a joint's evidence holds: diagnostics key -> articulation.json key
+EVIDENCE_KEYS = {"bic_revolute": "bic_revolute", "bic_prismatic": "bic_prismatic",
+                 "angle_significant": "angle_significant", "free_space_violation": "free_space_violation",
+                 "blocked_share": "blocked_share", "pairing_confidence": "pairing_confidence"}
+
+
+def joint_evidence(joint: JointEstimate) -> dict[str, Any]:
+    """Why this joint: ``type_reason`` (the type test's reading: both hypotheses' BIC -- lower is
+    better -- and whether the turn is significant, or the search step that set the type), the
+    share of the moved part the cameras saw through (``free_space_violation``,
+    :mod:`sparseart.joints.free_space_check`), the share its turn pushes into the static part
+    (``blocked_share``), the labeler's trust in its pairing; keys absent when not measured."""
+    diagnostics = joint.diagnostics
+    evidence: dict[str, Any] = {"type_reason": type_reason(joint)}
+    evidence.update({out: _jsonable(diagnostics[key]) for key, out in EVIDENCE_KEYS.items() if key in diagnostics})
+    return evidence
+
+
+def type_reason(joint: JointEstimate) -> str:
+    """One line: why the joint has its type (the type test's reason and BIC margin, or the
+    candidate search's note when the type was not decided by the test)."""
+    reason = joint.diagnostics.get("type_reason")
+    if reason and joint.diagnostics.get("type_choice", joint.type) == joint.type:
+        return str(reason)
+    return "set after the fit (a look-alike sibling's slide, or the type given)"
 
 
 def _jsonable(value: Any) -> Any:
@@ -100,6 +128,7 @@ def summary_lines(result: Articulation) -> list[str]:
                      f"± {joint.uncertainty.get('axis_deg', float('nan')):.2f} deg, {amount}, "
                      f"origin ± {joint.uncertainty.get('origin', float('nan')):.4f}, "
                      f"confidence {joint.confidence:.2f}")
+        lines.append(f"  why {joint.type}: {type_reason(joint)}")
     timing = ", ".join(f"{s.name} {s.seconds:.2f}s" for s in result.stages if s.ran)
     lines.append(f"time: {timing} (total {sum(s.seconds for s in result.stages):.2f}s)")
     lines.extend(f"warning: {w}" for w in result.warnings)

@@ -89,6 +89,9 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
         result.joint = joint
         if part_type == "auto":    # a type the labeler or the user gave stays
             free_type.add(spec.id)
+        else:
+            joint.diagnostics.update(type_choice=part_type, type_reason="given by the user (joint_type)"
+                                     if joint_type != "auto" else "given by the part labeler")
         inputs[spec.id] = (part_points, fit_options)
     fitted = {r.spec.id: r for r in results if r.joint is not None}
     turned_to_slides = slides_like_siblings({pid: r.joint for pid, r in fitted.items()},
@@ -217,9 +220,31 @@ def fit_part(part_start: np.ndarray, part_end: np.ndarray, start_colors: np.ndar
     kind, seed, own = calls[id(chosen)]
     complete = fit_joint(part_start, part_end, joint_type=kind, initial_transform=seed, **colours)
     complete.warnings.extend(chosen.warnings[own:])     # what the choice among candidates added
+    explain_type(complete, candidates)
     widen_for_rival_slides(complete, [c for c in candidates + slide_fits if c is not chosen])
     widen_for_tied_hinges(complete, chosen.diagnostics.get("tied_hinge"))
     return along_front_normal(complete, part_start, part_end, colours, config.seed if config else 0, *views)
+
+
+def explain_type(joint: JointEstimate, candidates: list[JointEstimate]) -> None:
+    """Give ``joint`` a ``type_reason`` (and ``type_choice``) when its own fit did not run the type
+    test (a seed fitted as one type only): the test's reading of the best candidate that chose the
+    same type, else the residuals of the best candidates of each type. In place. O(C)."""
+    if joint.diagnostics.get("type_choice") == joint.type:
+        return
+    tested = sorted((c for c in candidates if c.diagnostics.get("type_choice") == joint.type),
+                    key=lambda c: c.residual)
+    if tested:
+        joint.diagnostics.update({k: tested[0].diagnostics[k] for k in
+                                  ("bic_revolute", "bic_prismatic", "type_reason", "type_choice", "angle_significant")
+                                  if k in tested[0].diagnostics})
+        return
+    others = [c.residual for c in candidates if c.type != joint.type]
+    other = "prismatic" if joint.type == "revolute" else "revolute"
+    joint.diagnostics["type_reason"] = (
+        f"the {joint.type} candidates fit best (residual {joint.residual:.3g}"
+        + (f", the best {other} {min(others):.3g})" if others else f"; no {other} candidate)"))
+    joint.diagnostics["type_choice"] = joint.type
 
 
 RIVAL_SLIDE_RESIDUAL_RATIO = 1.1  # another slide fitting this close to the chosen one is a rival ...

@@ -75,8 +75,10 @@ def select_joint_type(
     bic_prismatic = bic(rss_prismatic, count, PARAMETER_COUNT["prismatic"])
     significant = angle_is_significant(angle, angle_sigma, z, min_angle)
     if not significant:
-        choice, reason = "prismatic", (f"rotation {np.degrees(abs(angle)):.3g} deg is not significant "
-                                       f"(sigma {np.degrees(angle_sigma):.2g} deg)")
+        below = (f"below the {np.degrees(min_angle):.2g} deg a turn needs" if abs(angle) < min_angle
+                 else f"within {z:g} sigma of none (sigma {np.degrees(angle_sigma):.2g} deg)")
+        choice, reason = "prismatic", (f"rotation {np.degrees(abs(angle)):.3g} deg is not significant ({below}); "
+                                       f"BIC revolute - prismatic {bic_revolute - bic_prismatic:.3g}")
     elif bic_revolute < bic_prismatic - bic_margin:
         choice, reason = "revolute", f"significant rotation and BIC lower by {bic_prismatic - bic_revolute:.3g}"
     else:
@@ -125,5 +127,6 @@ def choose_type(revolute: ModelFit, prismatic: ModelFit, config: FitConfig,
                                 f"a {np.degrees(abs(angle)):.3g} deg turn about a pivot {pivot_factor:.3g} part radii "
                                 "away is a slide")
     diagnostics = {"bic_revolute": decision.bic_revolute, "bic_prismatic": decision.bic_prismatic,
-                   "type_reason": decision.reason, "angle_significant": decision.angle_significant}
+                   "type_reason": decision.reason, "type_choice": decision.joint_type,
+                   "angle_significant": decision.angle_significant}
     return decision, diagnostics
