@@ -11,8 +11,9 @@ posed safe: the fitted line 0.1 object units off, 31 % of the moved start points
 moved end points in seen-through space; the true motion 0 % and 0 %).
 
 :func:`check_free_space` reads that share for a fitted turn and, when it is high, searches the
-hinge line across the fitted axis and the angle about it for the motion the views contradict
-least (the axis direction, which the fit gets right in these cases, is kept). A clearly better
+hinge line across the fitted axis, turning by the fitted angle or by its opposite, for the motion
+the views contradict least (the axis direction and the angle's size, which the fit gets right in
+these cases, are kept). A clearly better
 motion replaces the fitted hinge line and angle, with a warning; otherwise nothing changes.
 
 The depth tolerance is read off the scene, not set: the static part does not move, so the
@@ -40,9 +41,7 @@ VIOLATION_TIE = 0.02         # violation shares this close are a tie, broken by 
 MISFIT_MARGINS = 3.0         # ... the mean nearest distance to the part in this many margins, clipped at 1
 PIVOT_SPAN_RADII = 1.0       # the hinge line is searched within this many part radii of the fitted one ...
 PIVOT_GRID = 9               # ... on this many places per direction across the axis
-ANGLE_STEP_DEG = 5.0         # then the angle about the axis, every this many degrees over a whole turn
-SEARCH_ROUNDS = 3            # rounds of pivot-then-angle search, each finer
-FIRST_ANGLES_DEG = (0.0, -7.5, 7.5, -15.0, 15.0)  # the first round's pivots are tried at the fitted angle plus these
+SEARCH_ROUNDS = 3            # rounds of the pivot search, each a third as wide
 
 
 def scene_views(start: LabelledCloud, end: LabelledCloud, scene: Scene | None,
@@ -121,33 +120,24 @@ def turn(axis: np.ndarray, pivot: np.ndarray, angle: float) -> np.ndarray:
 
 def search_turn(cost: MotionCost, axis: np.ndarray, pivot: np.ndarray, angle: float,
                 radius: float) -> tuple[tuple[float, float], np.ndarray, float]:
-    """The (cost, pivot, angle) of least ``cost`` among turns about lines parallel to ``axis``, by
-    ``SEARCH_ROUNDS`` rounds of coordinate descent: the pivot on a ``PIVOT_GRID`` square grid
-    across the axis (within ``PIVOT_SPAN_RADII`` x ``radius`` of ``pivot`` in the first round, at
-    ``angle`` plus each of ``FIRST_ANGLES_DEG`` and at ``-angle``; a third as wide each round
-    after, at the best angle), then the angle about the best line (every ``ANGLE_STEP_DEG``
-    over a whole turn in the first round -- a turn the other way is a candidate --, then within
-    two steps at a quarter of the step). O(R G^2 + 6 G^2 + R A) cost calls (~900 here)."""
+    """The (cost, pivot, angle) of least ``cost`` among turns by ``angle`` or by ``-angle`` (the
+    turn the other way) about lines parallel to ``axis``: the pivot on a ``PIVOT_GRID`` square
+    grid across the axis, within ``PIVOT_SPAN_RADII`` x ``radius`` of ``pivot`` in the first of
+    ``SEARCH_ROUNDS`` rounds and a third as wide about the best line in each round after. The fit
+    gets the angle's size right where it gets the line wrong (the views leave the angle loosely
+    fixed: hidden points are no evidence), so only its sign is searched. O(R G^2) cost calls."""
     across = np.linalg.svd(np.eye(3) - np.outer(axis, axis))[0][:, :2]
-    span, step = PIVOT_SPAN_RADII * radius, np.radians(ANGLE_STEP_DEG)
-    angles = angle + step * np.arange(-round(np.pi / step), round(np.pi / step) + 1)
+    span = PIVOT_SPAN_RADII * radius
     best = (cost(turn(axis, pivot, angle)), pivot, angle)
-    # the first round's pivots at the fitted angle, angles beside it and the turn the other way
-    first = [angle + np.radians(d) for d in FIRST_ANGLES_DEG] + [-angle]
     for round_ in range(SEARCH_ROUNDS):
         offsets = np.linspace(-span, span, PIVOT_GRID)
         centre = best[1]
-        for at in (first if round_ == 0 else [best[2]]):
+        for at in ((angle, -angle) if round_ == 0 else (best[2],)):
             for p in (centre + u * across[:, 0] + v * across[:, 1] for u in offsets for v in offsets):
                 value = cost(turn(axis, p, at))
                 if value < best[0]:
                     best = (value, p, float(at))
-        for a in angles:
-            value = cost(turn(axis, best[1], a))
-            if value < best[0]:
-                best = (value, best[1], float(a))
-        span, step = span / 3, step / 4
-        angles = best[2] + step * np.arange(-8, 9)
+        span /= 3
     return best
 
 
@@ -156,8 +146,8 @@ def check_free_space(joint: JointEstimate, part_start: np.ndarray, part_end: np.
     """For a revolute ``joint``: its moved points' share in seen-through space
     (``diagnostics["free_space_violation"]``), and when that exceeds ``MIN_VIOLATION`` the
     :func:`search_turn` result replaces the hinge line and angle if its violation share is
-    below ``GAIN`` x the fit's and lower by ``MIN_DROP`` (axis direction kept; the origin's
-    and angle's sigma raised to at least the search's resolution; a warning says so). Slides are left alone. In place. Cost about 0.2-0.5 s per searched turn."""
+    below ``GAIN`` x the fit's and lower by ``MIN_DROP`` (axis direction and angle size kept; the
+    origin's sigma raised to at least the search's resolution; a warning says so). Slides are left alone. In place. Cost about 0.2-0.5 s per searched turn."""
     if joint.type != "revolute" or joint.angle is None:
         return
     cost = MotionCost(part_start, part_end, views)
@@ -173,10 +163,10 @@ def check_free_space(joint: JointEstimate, part_start: np.ndarray, part_end: np.
     if not (searched < GAIN * violation and searched < violation - MIN_DROP):
         return
     moved = float(np.linalg.norm(np.cross(pivot - joint.origin, axis)))
-    turned = abs(angle - float(joint.angle))
+    reversed_ = angle * float(joint.angle) < 0
     joint.warnings.append(
         f"the fitted turn put {violation:.0%} of the part where the cameras saw empty space: hinge line moved "
-        f"{moved:.3g} and the angle by {np.degrees(turned):.1f} deg to the turn the views contradict least "
+        f"{moved:.3g}{' and the turn reversed' if reversed_ else ''} to the turn the views contradict least "
         f"({searched:.0%})")
     joint.origin = pivot - float(np.dot(pivot - joint.origin, axis)) * axis   # the new line, nearest the old origin
     joint.angle = angle
@@ -185,6 +175,4 @@ def check_free_space(joint: JointEstimate, part_start: np.ndarray, part_end: np.
     last = 3 ** (SEARCH_ROUNDS - 1)
     resolution = 2 * PIVOT_SPAN_RADII * rms_radius(part_start) / last / (PIVOT_GRID - 1)
     joint.uncertainty["origin"] = max(float(joint.uncertainty.get("origin", 0.0)), resolution)
-    joint.uncertainty["angle"] = max(float(joint.uncertainty.get("angle", 0.0)),
-                                     np.radians(ANGLE_STEP_DEG) / 4 ** (SEARCH_ROUNDS - 1))
-    joint.diagnostics["free_space_moved"] = {"origin": moved, "angle_rad": turned}
+    joint.diagnostics["free_space_moved"] = {"origin": moved, "reversed": reversed_}
