@@ -740,8 +740,8 @@ def hinge_reach(candidate: JointEstimate, points: np.ndarray, radius: float) -> 
 
 def without_half_turns(candidates: list[JointEstimate]) -> list[JointEstimate]:
     """The candidates without the revolute fits that turn by more than ``HALF_TURN_DEG``, when
-    one of the others explains the data alike (residual within ``COMPARABLE_RESIDUAL_RATIO`` of
-    the best). A symmetric part (a drawer front, a lid) maps onto itself under a half-turn, so a
+    one of the others explains the data nearly alike (residual within ``HALF_TURN_RESIDUAL_RATIO``
+    of the best). A symmetric part (a drawer front, a lid) maps onto itself under a half-turn, so a
     slide or a small turn has a twin turning by ~180 deg that fits as well; real joints of
     furniture and appliances turn by less (the 21 rendered joints: 37-75 deg, the real laptop 96
     deg). Measured: an unposed twin-drawer cabinet's drawer fitted as a 180 deg turn (axis 90 deg
@@ -754,9 +754,16 @@ def without_half_turns(candidates: list[JointEstimate]) -> list[JointEstimate]:
     smaller = [c for c in candidates if not _half_turn(c)]
     if len(smaller) == len(candidates) or not smaller:
         return candidates
-    if min(c.residual for c in smaller) > COMPARABLE_RESIDUAL_RATIO * best.residual:
+    if min(c.residual for c in smaller) > HALF_TURN_RESIDUAL_RATIO * best.residual:
         return candidates
     return smaller
+
+
+# A turn of less than HALF_TURN_DEG replaces a half-turn fitting up to this many times better: the
+# corpus's true turns are all below 100 deg, and a symmetric part's flip (a bucket's U-shaped wire
+# handle turned over about its bisector) lays the part on itself better than its true turn seen
+# from one side (measured: a bucket handle's 180 deg flip at 0.40 of the residual of its 90 deg turn).
+HALF_TURN_RESIDUAL_RATIO = 3.0
 
 
 def _half_turn(candidate: JointEstimate) -> bool:
