@@ -157,7 +157,8 @@ class Progress:
             if self.done == self.total:
                 self.stream.write("\n")
         else:
-            self.stream.write(f"[{self.done}/{self.total}] {label} ({elapsed:.0f}s)\n")
+            left = elapsed / self.done * (self.total - self.done)
+            self.stream.write(f"[{self.done}/{self.total}] {label} ({elapsed:.0f}s, ~{left / 60:.0f} min left)\n")
         self.stream.flush()
 
 
