@@ -545,3 +545,10 @@ def test_the_cameras_overrule_the_attachment_among_turns_that_fit_alike():
 
     assert choose_fit([on_wall, off_wall], part, static, seen_through) is off_wall
     assert choose_fit([on_wall, off_wall], part, static, lambda transform: 0.2) is on_wall
+    # a slab's mirror (turning the other way about its mid-line) is not judged against the hinge:
+    # the hinge's line may sit beside the true one until the free-space search moves it
+    mirror = _estimate("revolute", 0.0100, angle_deg=-110.0)
+    mirror.axis, mirror.origin = np.array([0.0, 0.0, 1.0]), np.array([0.3, 0.0, 0.0])
+    mirror.transform = np.eye(4)
+    mirror.transform[0, 3] = 0.5
+    assert choose_fit([on_wall, mirror], part, static, lambda t: 0.32 if t[0, 3] == 0.0 else 0.05) is on_wall

@@ -791,8 +791,8 @@ def choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
     attachment tells nothing among the hinges about as near (within ``TIED_GAP_RATIO``): the
     lowest residual among them wins. Before the attachment, with ``violation`` (a motion's share
     of the part the cameras saw through, :class:`~sparseart.joints.free_space_check.MotionCost`)
-    the comparable turns contradicted by more than ``VIOLATION_SLACK`` beyond the least
-    contradicted one are dropped (measured: a suitcase lid whose nearest-attached rival, 27 deg
+    each comparable turn contradicted by more than ``VIOLATION_SLACK`` beyond another that turns
+    the same way (angles within ``MIRROR_TURN_GAP``) is dropped (measured: a suitcase lid whose nearest-attached rival, 27 deg
     off, put 32 % of it in seen-through space, the lowest-residual turn 8 %).
     O(C (25 log S + V S')) for C candidates."""
     best = min(candidates, key=lambda c: c.residual)
@@ -801,11 +801,14 @@ def choose_fit(candidates: list[JointEstimate], start_points: np.ndarray,
     if best.type != "revolute" or len(comparable) < 2:
         return best
     if violation is not None:
-        # the physical test first: of turns that fit alike, those the cameras contradict clearly
-        # more than the least contradicted one are not the motion
+        # the physical test first: of turns that fit alike and turn the same way, those the cameras
+        # contradict clearly more than another are not the motion. A slab's mirror (turning the
+        # other way about its mid-line) is not judged against the hinge: a hinge line fitted beside
+        # the true one is contradicted until check_free_space moves it, the mirror is not
         shares = {id(c): violation(c.transform) for c in comparable}
-        least = min(shares.values())
-        comparable = [c for c in comparable if shares[id(c)] <= least + VIOLATION_SLACK]
+        comparable = [c for c in comparable
+                      if not any(shares[id(o)] + VIOLATION_SLACK < shares[id(c)]
+                                 and joint_gap(c, o).get("angle", 0.0) <= MIRROR_TURN_GAP for o in comparable)]
         if len(comparable) < 2:
             return comparable[0]
         best = min(comparable, key=lambda c: c.residual)
