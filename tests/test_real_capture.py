@@ -44,7 +44,7 @@ def test_real_laptop_lid_hinge_and_turn(laptop) -> None:
 def test_real_laptop_confidence_reads_the_residual_beyond_its_noise(laptop) -> None:
     # Sensor depth leaves a residual floor no motion removes (the lid's two disjoint samples of
     # one state pair at 3.8 mm, the fit at 4.5 mm): read against the raw residual the correct
-    # lid scored 0.66; now 0.77, clean laptop renders 0.80-0.86 (benchmarks/results/realistic/noise_floor/).
+    # lid scored 0.66; now 0.77, clean laptop renders 0.80-0.86 (experiment EXP-032).
     result, _ = laptop
     joint = max((joint for _, joint in result.joints if joint.type == "revolute"), key=lambda j: j.confidence)
     floor = joint.diagnostics["residual_floor"]
