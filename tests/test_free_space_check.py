@@ -10,7 +10,8 @@ import pytest
 
 from sparseart.bench.metrics import axis_position_error
 from sparseart.geometry.free_space import VIOLATION
-from sparseart.joints.free_space_check import MotionCost, check_free_space, scene_views, turn
+from sparseart.geometry.transforms import transform_from_revolute as turn
+from sparseart.joints.free_space_check import MotionCost, check_free_space, scene_views
 from sparseart.types import Camera, Frame, JointEstimate, LabelledCloud, Scene
 
 WIDTH, HEIGHT = 160, 120

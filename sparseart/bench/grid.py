@@ -189,10 +189,7 @@ def _evaluate_group(tasks: list[tuple[int, Path, Path, BenchSetting, bool]]) -> 
     out = []
     for index, object_dir, scenes, setting, peer in tasks:
         try:
-            rows = evaluate_object(object_dir, scenes, setting, peer=peer)
-            for row in rows:
-                row["category"] = category_of(object_dir.name)
-            out.append((index, rows, None))
+            out.append((index, evaluate_object(object_dir, scenes, setting, peer=peer), None))
         except Exception as error:  # noqa: BLE001 - one broken object must not end a long run
             out.append((index, [], f"{object_dir.name} [{setting.name}]: {type(error).__name__}: {error}"))
     return out
@@ -290,8 +287,8 @@ def aggregate(rows: list[dict[str, Any]], keys: tuple[str, ...]) -> list[dict[st
     """``metrics.summarise`` plus stage timings per group of ``keys`` (e.g. setting, method)."""
     groups: dict[tuple, list[dict[str, Any]]] = {}
     for row in rows:
-        groups.setdefault(tuple(row.get("category") or category_of(row["object"]) if k == "category" else row[k]
-                                for k in keys), []).append(row)
+        groups.setdefault(tuple(category_of(row["object"]) if k == "category" else row[k] for k in keys),
+                          []).append(row)
     out = []
     for key, group in groups.items():
         entry = dict(zip(keys, key))
@@ -393,7 +390,8 @@ def rows_csv(rows: list[dict[str, Any]]) -> str:
     writer = csv.DictWriter(buffer, fieldnames=CSV_FIELDS, extrasaction="ignore")
     writer.writeheader()
     for row in rows:
-        flat = dict(row, n_warnings=len(row.get("warnings", [])), seed=row.get("config", {}).get("seed"))
+        flat = dict(row, n_warnings=len(row.get("warnings", [])), seed=row.get("config", {}).get("seed"),
+                    category=category_of(row["object"]))
         flat.update({f"{s}_seconds": row["stage_seconds"].get(s) for s in STAGES})
         writer.writerow(flat)
     return buffer.getvalue()

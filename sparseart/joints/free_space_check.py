@@ -24,11 +24,13 @@ or a rough state alignment widen it on their own.
 from __future__ import annotations
 
 import numpy as np
+from functools import cached_property
+
 from scipy.spatial import cKDTree
-from scipy.spatial.transform import Rotation
 
 from sparseart.geometry.clouds import median_spacing, rms_radius
 from sparseart.geometry.free_space import VIOLATION, StateViews, state_views
+from sparseart.geometry.transforms import apply_transform, transform_from_revolute
 from sparseart.types import JointEstimate, LabelledCloud, Scene
 
 MARGIN_SPACINGS = (3.0, 6.0, 12.0, 24.0)  # depth tolerances tried, in point spacings (smallest that fits the static part)
@@ -55,8 +57,7 @@ def scene_views(start: LabelledCloud, end: LabelledCloud, scene: Scene | None,
     if scene is None or len(start) < 10 or len(end) < 10:
         return None
     spacing = median_spacing(start.points, sample=4000, rng=np.random.default_rng(0))
-    static = start.points[static_start]
-    static = static[np.linspace(0, len(static) - 1, min(len(static), CHECK_SAMPLE)).astype(np.int64)]
+    static = _sample(start.points[static_start])
     margin = MARGIN_SPACINGS[-1] * spacing
     end_views = state_views(end, scene, margin)
     if not end_views:
@@ -86,37 +87,34 @@ class MotionCost:
     (N, 3), part_end (M, 3) float64, scene frame. O(S (V + log M)) per call for S = ``CHECK_SAMPLE``."""
 
     def __init__(self, part_start: np.ndarray, part_end: np.ndarray, views: tuple[StateViews, StateViews]) -> None:
+        self.part_start, self.part_end = part_start, part_end
         self.start, self.end = _sample(part_start), _sample(part_end)
         self.start_views, self.end_views = views
-        self.start_tree, self.end_tree = cKDTree(part_start), cKDTree(part_end)
         self.margin = self.end_views.margin
+
+    @cached_property
+    def trees(self) -> tuple[cKDTree, cKDTree]:
+        """KD-trees of the whole part in each state, built on the first :meth:`misfit` (the
+        violation alone needs none). O((N + M) log (N + M))."""
+        return cKDTree(self.part_start), cKDTree(self.part_end)
 
     def violation(self, transform: np.ndarray) -> float:
         inverse = np.linalg.inv(transform)
-        forward = self.end_views.classify(self.start @ transform[:3, :3].T + transform[:3, 3])
-        backward = self.start_views.classify(self.end @ inverse[:3, :3].T + inverse[:3, 3])
+        forward = self.end_views.classify(apply_transform(transform, self.start))
+        backward = self.start_views.classify(apply_transform(inverse, self.end))
         return 0.5 * (float(np.mean(forward == VIOLATION)) + float(np.mean(backward == VIOLATION)))
 
     def misfit(self, transform: np.ndarray) -> float:
         inverse = np.linalg.inv(transform)
         scale = MISFIT_MARGINS * self.margin
-        forward = self.end_tree.query(self.start @ transform[:3, :3].T + transform[:3, 3], k=1,
-                                      distance_upper_bound=scale)[0]
-        backward = self.start_tree.query(self.end @ inverse[:3, :3].T + inverse[:3, 3], k=1,
-                                         distance_upper_bound=scale)[0]
+        start_tree, end_tree = self.trees
+        forward = end_tree.query(apply_transform(transform, self.start), k=1, distance_upper_bound=scale)[0]
+        backward = start_tree.query(apply_transform(inverse, self.end), k=1, distance_upper_bound=scale)[0]
         return 0.5 * float(np.mean(np.minimum(forward / scale, 1.0)) + np.mean(np.minimum(backward / scale, 1.0)))
 
     def __call__(self, transform: np.ndarray) -> tuple[float, float]:
         violation = self.violation(transform)
         return round(violation / VIOLATION_TIE) * VIOLATION_TIE, self.misfit(transform)
-
-
-def turn(axis: np.ndarray, pivot: np.ndarray, angle: float) -> np.ndarray:
-    """(4, 4) float64 turn by ``angle`` rad about the line through ``pivot`` along unit ``axis``."""
-    transform = np.eye(4)
-    transform[:3, :3] = Rotation.from_rotvec(axis * angle).as_matrix()
-    transform[:3, 3] = pivot - transform[:3, :3] @ pivot
-    return transform
 
 
 def search_turn(cost: MotionCost, axis: np.ndarray, pivot: np.ndarray, angle: float,
@@ -129,13 +127,13 @@ def search_turn(cost: MotionCost, axis: np.ndarray, pivot: np.ndarray, angle: fl
     fixed: hidden points are no evidence), so only its sign is searched. O(R G^2) cost calls."""
     across = np.linalg.svd(np.eye(3) - np.outer(axis, axis))[0][:, :2]
     span = PIVOT_SPAN_RADII * radius
-    best = (cost(turn(axis, pivot, angle)), pivot, angle)
+    best = (cost(transform_from_revolute(axis, pivot, angle)), pivot, angle)
     for round_ in range(SEARCH_ROUNDS):
         offsets = np.linspace(-span, span, PIVOT_GRID)
         centre = best[1]
         for at in ((angle, -angle) if round_ == 0 else (best[2],)):
             for p in (centre + u * across[:, 0] + v * across[:, 1] for u in offsets for v in offsets):
-                value = cost(turn(axis, p, at))
+                value = cost(transform_from_revolute(axis, p, at))
                 if value < best[0]:
                     best = (value, p, float(at))
         span /= 3
@@ -163,8 +161,9 @@ def check_free_space(joint: JointEstimate, part_start: np.ndarray, part_end: np.
     axis = np.asarray(joint.axis, dtype=np.float64)
     _, pivot, angle = search_turn(cost, axis, np.asarray(joint.origin, dtype=np.float64), float(joint.angle),
                                   rms_radius(part_start))
-    searched = cost.violation(turn(axis, pivot, angle))
-    misfits = cost.misfit(joint.transform), cost.misfit(turn(axis, pivot, angle))
+    searched_turn = transform_from_revolute(axis, pivot, angle)
+    searched = cost.violation(searched_turn)
+    misfits = cost.misfit(joint.transform), cost.misfit(searched_turn)
     joint.diagnostics["free_space_search"] = {"violation": searched, "angle": angle, "misfit": misfits[1],
                                               "fitted_misfit": misfits[0]}
     if not (searched < GAIN * violation and searched < violation - MIN_DROP
@@ -178,7 +177,7 @@ def check_free_space(joint: JointEstimate, part_start: np.ndarray, part_end: np.
         f"({searched:.0%})")
     joint.origin = pivot - float(np.dot(pivot - joint.origin, axis)) * axis   # the new line, nearest the old origin
     joint.angle = angle
-    joint.transform = turn(axis, joint.origin, angle)
+    joint.transform = transform_from_revolute(axis, joint.origin, angle)
     # the search's own resolution: its finest pivot step and angle step
     last = 3 ** (SEARCH_ROUNDS - 1)
     resolution = 2 * PIVOT_SPAN_RADII * rms_radius(part_start) / last / (PIVOT_GRID - 1)
