@@ -12,13 +12,13 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from sparseart.geometry.clouds import median_spacing, rms_radius, slab_axes
+from sparseart.geometry.free_space import StateViews
 from sparseart.geometry.planes import best_by_truncated_chamfer, hinge_turns, ransac_plane
 from sparseart.geometry.sampling import random_subset
 from sparseart.geometry.transforms import axis_angle_deg
 from sparseart.joints.body_axes import along_body_axes, static_body_axes
 from sparseart.joints.clean import estimate_normals
 from sparseart.joints.fit import FitConfig, fit_joint
-from sparseart.geometry.free_space import StateViews
 from sparseart.joints.free_space_check import MotionCost, check_free_space, scene_views
 from sparseart.joints.reliability import HALF_TURN_DEG, MAX_AXIS_SIGMA_DEG
 from sparseart.joints.siblings import slides_like_siblings
