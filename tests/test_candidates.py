@@ -552,3 +552,25 @@ def test_the_cameras_overrule_the_attachment_among_turns_that_fit_alike():
     mirror.transform = np.eye(4)
     mirror.transform[0, 3] = 0.5
     assert choose_fit([on_wall, mirror], part, static, lambda t: 0.32 if t[0, 3] == 0.0 else 0.05) is on_wall
+
+
+def test_the_cameras_overrule_a_slide_that_fits_a_turned_handle_alike():
+    """A handle whose round cap stays on itself: standing still (a tiny slide) fits the cap as well
+    as the true turn and wins on the residual, but leaves the turned lever where the other state's
+    cameras saw empty space; the physical test drops it, across types. Without views the residual
+    decides as before; a turn contradicted more than a comparable slide drops out likewise."""
+    from sparseart.joints.candidates import choose_fit
+
+    rng = np.random.default_rng(1)
+    part = rng.normal(size=(200, 3))
+    still, turned = _estimate("prismatic", 0.0090), _estimate("revolute", 0.0092, angle_deg=73.0)
+    still.transform, turned.transform = np.eye(4), np.eye(4)
+    turned.transform[0, 3] = 1.0                                  # a tag the fake test below reads
+
+    def seen_through(transform: np.ndarray) -> float:
+        return 0.02 if transform[0, 3] == 1.0 else 0.14
+
+    assert choose_fit([still, turned], part, None) is still
+    assert choose_fit([still, turned], part, None, seen_through) is turned
+    assert choose_fit([still, turned], part, None, lambda transform: 0.3 - seen_through(transform)) is still
+    assert choose_fit([still, turned], part, None, lambda transform: 0.05) is still

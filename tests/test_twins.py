@@ -557,7 +557,8 @@ def test_colour_offset_between_states_is_taken_out_of_the_hit_test():
 
     from scipy.spatial import cKDTree
 
-    from sparseart.labelers.motion_ratings import chroma, moved_chroma, off_colour
+    from sparseart.labelers.colour import chroma
+    from sparseart.labelers.motion_ratings import moved_chroma, off_colour
 
     rng = np.random.default_rng(0)
     wall = np.c_[rng.uniform(0, 1, (400, 2)), np.zeros(400)]

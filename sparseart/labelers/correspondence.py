@@ -34,6 +34,7 @@ from scipy.optimize import linear_sum_assignment
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
+from ..geometry.axis_turns import axis_turns
 from ..geometry.clouds import pca_normals
 from ..geometry.planes import manhattan_frame
 from ..geometry.sweep import blocked_step_share
@@ -41,6 +42,7 @@ from ..joints.config import FitConfig
 from ..joints.select import FAR_PIVOT_MAX_TURN_DEG
 from ..parallel import in_parallel
 from ..types import LabelledCloud
+from .colour import rg_chromaticity
 from ..geometry.free_space import StateViews, visible_fraction
 
 TRAVEL_PENALTY = 0.25       # cost per object diameter a pairing moves its points
@@ -250,7 +252,8 @@ def set_score(start: LabelledCloud, end: LabelledCloud, source_idx: np.ndarray, 
                 else float(back_hits.mean()))
     if hits.any():
         end_colours = end.colors[target_members]
-        difference = np.abs(start.colors[source_idx][hits] - end_colours[nearest[hits]]).mean()
+        difference = np.abs(rg_chromaticity(start.colors[source_idx][hits])
+                            - rg_chromaticity(end_colours[nearest[hits]])).mean()
         colour = 1.0 - 0.5 * min(1.0, difference / 0.25)
     else:
         colour = 0.5
@@ -566,8 +569,9 @@ def _register_pair(ctx: PairContext, i: int, j: int, match_min_score: float,
 
     Coarse: every cheap hypothesis (centroid shift, principal-frame turns, the smaller group's
     box slid against each face of the larger one -- a closed drawer shows only its front) is
-    scored on ``COARSE_POINTS`` points per group; the best ``SUBPART_REFINE`` are refined by
-    symmetric trimmed ICP on those points. A pair whose best coarse score is below ``COARSE_KEEP``
+    screened on ``COARSE_POINTS`` points per group; the best ``SUBPART_REFINE`` are refined by
+    symmetric trimmed ICP on those points, and so are the best turns about each static axis
+    (:func:`~sparseart.geometry.axis_turns.axis_turns`: every angle, the shift by correlation). A pair whose best coarse score is below ``COARSE_KEEP``
     x ``match_min_score`` is dropped there; otherwise the best is refined on the full samples.
     Returns (score on the full samples, motion). O(H S_c log S_c + I S log S).
     """
@@ -592,6 +596,12 @@ def _register_pair(ctx: PairContext, i: int, j: int, match_min_score: float,
         refined = refine_icp(source, target, hypotheses[k], ctx.radius, source_tree=source_tree,
                              target_tree=target_tree)
         options += [(pair_score(ctx, i, j, option, coarse_samples), option) for option in (hypotheses[k], refined)]
+    # Turns about the static body's axes, searched over every angle (a part turning about its own
+    # symmetry axis lands mostly on itself: the screen above keeps the near-identity hypotheses).
+    axes = ctx.frame.T if ctx.frame is not None else np.linalg.svd(source - source.mean(axis=0), full_matrices=False)[2]
+    for turn in axis_turns(ctx.start.points[start_idx], ctx.end.points[end_idx], axes, ctx.radius):
+        refined = refine_icp(source, target, turn, ctx.radius, source_tree=source_tree, target_tree=target_tree)
+        options.append((pair_score(ctx, i, j, refined, coarse_samples), refined))
     best_score, best = prefer_small_turns(options)
     if best is None or best_score < COARSE_KEEP * match_min_score:
         return (pair_score(ctx, i, j, best) if best is not None else -1.0), best

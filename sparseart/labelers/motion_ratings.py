@@ -17,6 +17,7 @@ from ..geometry.sweep import blocked_step_share
 from ..geometry.transforms import screw_from_transform
 from ..parallel import in_parallel
 from ..geometry.free_space import HIDDEN, VIOLATION, StateViews
+from .colour import chroma
 from .correspondence import PairContext, apply, refine_icp, slide_sine_points
 
 HIDDEN_CREDIT = 0.5
@@ -94,17 +95,6 @@ def seen_both_ways(start_seen_hits: int, end_seen_hits: int, minimum: int = 10) 
     which that state's views could not see: hits one way only.) O(1)."""
     low, high = sorted((start_seen_hits, end_seen_hits))
     return low >= minimum and low >= SEEN_BOTH_SHARE * high
-
-
-def chroma(colors: np.ndarray) -> np.ndarray:
-    """(N, 4) colour without brightness of (N, 3) RGB colours in [0, 1]: CIELAB a*, b* (in
-    [-128, 127]) and rg chromaticity r / (r + g + b), g / (r + g + b) (in [0, 1])."""
-    import cv2
-
-    rgb = np.clip(np.asarray(colors, dtype=np.float64), 0.0, 1.0)
-    ab = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.float32)[None], cv2.COLOR_RGB2LAB)[0, :, 1:]
-    rg = rgb[:, :2] / np.maximum(rgb.sum(axis=1, keepdims=True), 1e-6)
-    return np.concatenate([ab.astype(np.float64), rg], axis=1)
 
 
 def off_colour(own: np.ndarray, target: np.ndarray) -> np.ndarray:
