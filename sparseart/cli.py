@@ -12,7 +12,7 @@ import tempfile
 import traceback
 from pathlib import Path
 
-from .types import SceneError
+from .errors import SceneError
 
 EXIT_BAD_INPUT = 2
 
@@ -99,7 +99,7 @@ def _parser() -> argparse.ArgumentParser:
         "--realism realistic --occluder 0 --jpeg 0.5")
     real.add_argument("--realism", choices=["clean", "realistic"], default="clean",
                       help="clean (default: the plain raycast, unchanged scenes) or realistic (every knob at 1)")
-    from .datasets.realism import KNOB_TABLE
+    from .datasets.knobs import KNOB_TABLE
 
     for knob, (what, at_one) in KNOB_TABLE.items():
         real.add_argument(_knob_flag(knob), type=float, default=None, metavar="LEVEL", dest=f"realism_{knob}",

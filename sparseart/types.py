@@ -18,14 +18,12 @@ from typing import Any, Literal
 
 import numpy as np
 
+from .errors import SceneError  # noqa: F401 - re-exported: the types' home names it too
+
 StateName = Literal["start", "end"]
 JointType = Literal["revolute", "prismatic"]
 JOINT_TYPES: tuple[str, ...] = ("revolute", "prismatic")
 STATES: tuple[str, ...] = ("start", "end")
-
-
-class SceneError(ValueError):
-    """Bad input. ``str(error)`` is one line naming the offending file and the problem."""
 
 
 @dataclass
