@@ -258,6 +258,13 @@ def test_page_draws_the_parts_and_the_slider_moves_the_door(articulation, tmp_pa
                     "v => [...document.querySelectorAll('[role=slider]')].some("
                     "s => Math.abs(parseFloat(s.getAttribute('aria-valuenow')) - v) < 0.5)",
                     arg=float(np.degrees(DOOR_ANGLE)), timeout=10_000)
+                box = page.locator("input:visible:not([type=checkbox])").first  # the door slider's number box
+                box.fill("-20")
+                box.press("Enter")
+                deadline = time.monotonic() + 30.0
+                while abs(viewer.values[1] + 20.0) > 1e-6 and time.monotonic() < deadline:
+                    time.sleep(0.1)
+                assert viewer.values[1] == pytest.approx(-20.0), "the page's slider did not reach the server"
             finally:
                 browser.close()
     finally:
