@@ -30,6 +30,7 @@ from __future__ import annotations
 import contextlib
 import io
 import math
+import socket
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -175,8 +176,8 @@ def _read_joints(document: Any, path: Path) -> tuple[list[int], dict[int, JointV
     parts, joints = document.get("parts", []), document.get("joints", [])
     if not isinstance(parts, list) or not isinstance(joints, list):
         raise _fail(path, "\"parts\" and \"joints\" must be lists")
-    part_ids = sorted({0} | {int(number(p.get("id") if isinstance(p, dict) else p, "parts[].id", path))
-                             for p in parts})
+    part_ids = sorted({0} | {int(number(p.get("id") if isinstance(p, dict) else None, f"parts[{k}].id", path))
+                             for k, p in enumerate(parts)})
     views: dict[int, JointView] = {}
     for k, entry in enumerate(joints):
         where = f"joints[{k}]"
@@ -440,6 +441,10 @@ def start_viewer(data: ViewData, host: str = "127.0.0.1", port: int = 8080, up: 
     None = -y for a camera frame, +z otherwise)."""
     import viser
 
+    try:  # viser retries an address it cannot bind on every next port, for ever: check it first
+        socket.create_server((host, 0)).close()
+    except OSError as error:
+        raise SceneError(one_line(f"--host {host}: cannot serve there ({error.strerror or error})")) from None
     with contextlib.redirect_stdout(io.StringIO()):  # viser's own address banner; serve() prints one line
         server = viser.ViserServer(host=host, port=port, verbose=False)
     viewer = Viewer(data, server)
@@ -471,6 +476,8 @@ def start_viewer(data: ViewData, host: str = "127.0.0.1", port: int = 8080, up: 
     coloured: list[tuple[Any, Any]] = []  # (part-coloured node, own-coloured node or None)
     for part, geometry in data.geometry.items():
         viewer.part_nodes[part] = server.scene.add_frame(f"/part_{part}", show_axes=False)
+        if len(geometry.points) == 0:  # e.g. an empty link PLY: nothing to draw
+            continue
         colour = _rgb8(part_colour(part))
         own = None
         if geometry.faces is not None:
