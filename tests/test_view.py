@@ -101,11 +101,13 @@ def test_geometry_sources_obj_then_link_ply_then_labelled_cloud(articulation, tm
         np.testing.assert_allclose(geometry.points, start[labels == part], atol=1e-9)
     assert set(data.observed) == {"start", "end"}
 
-    box = trimesh.creation.box(extents=(0.6, 0.02, 0.7))  # the door's mesh in its link frame
+    box = trimesh.creation.box(extents=(0.6, 0.02, 0.7))  # the door's mesh in its link frame, coloured
+    box.visual.vertex_colors = np.tile([200, 100, 50, 255], (len(box.vertices), 1))
     box.export(out / "meshes" / "part_1.obj")
     data = load_view_data(out)
     assert data.geometry[1].source == "mesh" and data.geometry[1].faces.shape == (12, 3)
     np.testing.assert_allclose(data.geometry[1].points, np.asarray(box.vertices) + HINGE_ORIGIN, atol=1e-6)
+    np.testing.assert_allclose(data.geometry[1].colours, np.tile([200, 100, 50], (8, 1)) / 255.0, atol=1e-6)
     assert data.geometry[2].source == "points"
 
     shutil.rmtree(out / "meshes")

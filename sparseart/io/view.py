@@ -238,9 +238,11 @@ def _read_obj(path: Path, origin: np.ndarray, part: int) -> PartGeometry:
     if not isinstance(mesh, trimesh.Trimesh):
         raise _fail(path, "holds no triangle mesh")
     mesh.apply_translation(origin)
-    colours = None
-    if mesh.visual is not None and mesh.visual.kind in ("vertex", "texture"):
-        colours = np.asarray(mesh.visual.to_color().vertex_colors, dtype=np.float64)[:, :3] / 255.0
+    colours, visual = None, mesh.visual
+    if visual is not None and visual.kind == "texture":
+        visual = visual.to_color()  # the texture sampled at the vertices
+    if visual is not None and visual.kind in ("vertex", "face"):
+        colours = np.asarray(visual.vertex_colors, dtype=np.float64)[:, :3] / 255.0
         if len(colours) != len(mesh.vertices):
             colours = None
     return PartGeometry(part, "mesh", path, np.asarray(mesh.vertices, dtype=np.float64),
