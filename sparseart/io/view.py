@@ -84,6 +84,7 @@ class JointView:
 
     @property
     def link(self) -> str:
+        """The URDF link of the part (:func:`sparseart.io.urdf.link_name`)."""
         return link_name(self.part)
 
     def transform(self, value: float) -> np.ndarray:
@@ -388,8 +389,9 @@ class Viewer:
 
     @property
     def url(self) -> str:
-        host = self.server.get_host()
-        return f"http://{'127.0.0.1' if host in ('0.0.0.0', '') else host}:{self.server.get_port()}/"
+        """The page's address (``0.0.0.0`` / ``::`` shown as this machine's loopback address)."""
+        host = {"0.0.0.0": "127.0.0.1", "": "127.0.0.1", "::": "::1"}.get(self.server.get_host(), self.server.get_host())
+        return f"http://{f'[{host}]' if ':' in host else host}:{self.server.get_port()}/"
 
     def set_joint(self, part: int, value: float) -> None:
         """Move joint ``part`` to ``value`` (degrees / frame units) as its slider would."""
@@ -410,6 +412,7 @@ class Viewer:
                 node.wxyz, node.position = _wxyz_position(poses[self.data.joints[joint_part].parent])
 
     def close(self) -> None:
+        """Stop the server (open pages lose their connection)."""
         self.server.stop()
 
 
@@ -444,7 +447,8 @@ def start_viewer(data: ViewData, host: str = "127.0.0.1", port: int = 8080, up: 
     import viser
 
     try:  # viser retries an address it cannot bind on every next port, for ever: check it first
-        socket.create_server((host, 0)).close()
+        family, _, _, _, address = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)[0]
+        socket.create_server(address[:2], family=family).close()
     except OSError as error:
         raise SceneError(one_line(f"--host {host}: cannot serve there ({error.strerror or error})")) from None
     with contextlib.redirect_stdout(io.StringIO()):  # viser's own address banner; serve() prints one line
