@@ -79,7 +79,8 @@ def _parser() -> argparse.ArgumentParser:
     view = commands.add_parser("view", help="an interactive 3-D page of a run's output folder (needs the view extra)")
     view.add_argument("out", type=Path, help="output folder of sparseart run (articulation.json; --ply and/or --urdf)")
     view.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1: this machine only)")
-    view.add_argument("--port", type=int, default=8080, help="port (default 8080; a busy port moves to the next; 0 = any)")
+    view.add_argument("--port", type=int, default=8080,
+                      help="port (default 8080; a busy port moves to the next; 0 = any)")
     view.add_argument("--up", choices=["+x", "-x", "+y", "-y", "+z", "-z"], default=None,
                       help="the scene's up direction (default: -y for a camera frame, +z for a world frame)")
     view.add_argument("--seconds", type=float, default=None,
@@ -146,7 +147,8 @@ def main(argv: list[str] | None = None) -> int:
 
     import numpy as np
 
-    command = {"run": _cmd_run, "view": _cmd_view, "demo": _cmd_demo, "render": _cmd_render, "bench": _cmd_bench}[args.command]
+    command = {"run": _cmd_run, "view": _cmd_view, "demo": _cmd_demo, "render": _cmd_render,
+               "bench": _cmd_bench}[args.command]
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore" if not args.debug else "warn"):
             if not args.debug:
@@ -233,13 +235,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 
 def _cmd_view(args: argparse.Namespace) -> int:
-    """``sparseart view OUT``: serve the interactive page of an output folder (sparseart.io.view;
+    """``sparseart view OUT``: serve the interactive page of an output folder (sparseart.view;
     viser is imported only here)."""
     if not 0 <= args.port <= 65535:
         raise SceneError(f"--port must lie in [0, 65535], got {args.port}")
     if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds >= 0):
         raise SceneError(f"--seconds must be a finite number >= 0, got {args.seconds}")
-    from sparseart.io.view import load_view_data, serve
+    from sparseart.view import load_view_data, serve
 
     data = load_view_data(args.out)  # bad input is reported before viser is needed
     try:

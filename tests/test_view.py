@@ -17,7 +17,7 @@ from sparseart.geometry.transforms import apply_transform, transform_from_prisma
 from sparseart.io.articulation import write_articulation
 from sparseart.io.ply import part_colour, write_labelled_clouds
 from sparseart.io.urdf import write_urdf
-from sparseart.io.view import cone_mesh, load_view_data, part_poses, slider_range
+from sparseart.view import cone_mesh, load_view_data, part_poses, slider_range
 from sparseart.types import (Articulation, JointEstimate, LabelledCloud, PartLabels, PartResult, PartSpec,
                              StageRecord)
 
@@ -220,7 +220,7 @@ def _wait_for(page, check, seconds: float = 60.0):
 def test_page_draws_the_parts_and_the_slider_moves_the_door(articulation, tmp_path):
     pytest.importorskip("viser")
     playwright = pytest.importorskip("playwright.sync_api")
-    from sparseart.io.view import start_viewer
+    from sparseart.view import start_viewer
 
     out = _write_out(articulation, tmp_path / "out")
     viewer = start_viewer(load_view_data(out), port=0)
