@@ -1,4 +1,4 @@
-"""Command line: ``sparseart run | demo | render | bench``.
+"""Command line: ``sparseart run | view | demo | render | bench``.
 
 Exit codes: 0 success, 2 bad input (one line naming the file and the problem), 1 internal error.
 """
@@ -76,6 +76,16 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--ply", action="store_true", help="also write start_parts.ply / end_parts.ply (part ids)")
     run.add_argument("--report", action="store_true", help="also write report.png (clouds, axes, stage times)")
 
+    view = commands.add_parser("view", help="an interactive 3-D page of a run's output folder (needs the view extra)")
+    view.add_argument("out", type=Path, help="output folder of sparseart run (articulation.json; --ply and/or --urdf)")
+    view.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1: this machine only)")
+    view.add_argument("--port", type=int, default=8080,
+                      help="port (default 8080; a busy port moves to the next; 0 = any)")
+    view.add_argument("--up", choices=["+x", "-x", "+y", "-y", "+z", "-z"], default=None,
+                      help="the scene's up direction (default: -y for a camera frame, +z for a world frame)")
+    view.add_argument("--seconds", type=float, default=None,
+                      help="serve this long, then exit (headless scripts and tests; default: until Ctrl-C)")
+
     demo = commands.add_parser("demo", help="render a procedural cabinet and recover its joints")
     demo.add_argument("--views", type=int, default=3, choices=[1, 2, 3, 4])
     demo.add_argument("--seed", type=int, default=0)
@@ -137,7 +147,8 @@ def main(argv: list[str] | None = None) -> int:
 
     import numpy as np
 
-    command = {"run": _cmd_run, "demo": _cmd_demo, "render": _cmd_render, "bench": _cmd_bench}[args.command]
+    command = {"run": _cmd_run, "view": _cmd_view, "demo": _cmd_demo, "render": _cmd_render,
+               "bench": _cmd_bench}[args.command]
     try:
         with warnings.catch_warnings(), np.errstate(all="ignore" if not args.debug else "warn"):
             if not args.debug:
@@ -221,6 +232,23 @@ def _cmd_run(args: argparse.Namespace) -> int:
         print("\n".join(summary_lines(result)))
         print(f"wrote {path}" + "".join(f", {extra}" for extra in extras))
     return 0
+
+
+def _cmd_view(args: argparse.Namespace) -> int:
+    """``sparseart view OUT``: serve the interactive page of an output folder (sparseart.view;
+    viser is imported only here)."""
+    if not 0 <= args.port <= 65535:
+        raise SceneError(f"--port must lie in [0, 65535], got {args.port}")
+    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds >= 0):
+        raise SceneError(f"--seconds must be a finite number >= 0, got {args.seconds}")
+    from sparseart.view import load_view_data, serve
+
+    data = load_view_data(args.out)  # bad input is reported before viser is needed
+    try:
+        import viser  # noqa: F401
+    except ImportError:
+        raise SceneError("sparseart view needs viser: pip install 'sparseart[view]'") from None
+    return serve(data, host=args.host, port=args.port, seconds=args.seconds, up=args.up)
 
 
 def _threads(args: argparse.Namespace) -> int:
