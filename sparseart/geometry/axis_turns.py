@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-ANGLE_STEP_DEG = 5.0    # angle grid of the search; the caller's ICP refines within a step
+ANGLE_STEP_DEG = 10.0   # angle grid of the search; the caller's ICP refines within a step
+GRID_CELLS = 64         # at most this many cells across a grid (the cell grows for large parts)
 
 
 def _plane_basis(axis: np.ndarray) -> np.ndarray:
@@ -33,17 +34,9 @@ def _occupancy(points_2d: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarr
     """Binary occupancy grid of (N, 2) points at ``cell`` spacing and its lower corner (2,)."""
     low = points_2d.min(axis=0)
     index = np.floor((points_2d - low) / cell).astype(np.int64)
-    grid = np.zeros(index.max(axis=0) + 1)
+    grid = np.zeros(index.max(axis=0) + 1, dtype=np.float32)
     grid[index[:, 0], index[:, 1]] = 1.0
     return grid, low
-
-
-def _correlation(target: np.ndarray, source: np.ndarray) -> np.ndarray:
-    """Full 2-D cross-correlation of two grids by FFT: entry k counts the source cells landing on
-    target cells when the source's corner cell sits at target cell ``k - (source.shape - 1)``."""
-    shape = tuple(np.asarray(target.shape) + np.asarray(source.shape) - 1)
-    product = np.fft.rfft2(target, shape) * np.fft.rfft2(source[::-1, ::-1], shape)
-    return np.fft.irfft2(product, shape)
 
 
 def axis_turns(source: np.ndarray, target: np.ndarray, axes: np.ndarray, cell: float,
@@ -51,34 +44,47 @@ def axis_turns(source: np.ndarray, target: np.ndarray, axes: np.ndarray, cell: f
     """Candidate turns of ``source`` onto ``target`` about lines parallel to each of ``axes``.
 
     source, target: (N, 3) / (M, 3) float64, one frame. axes: (K, 3) axis directions. cell: grid
-    spacing (the caller's inlier radius). Returns up to ``keep`` (4, 4) motions per axis: the
-    angles (of the ``ANGLE_STEP_DEG`` grid, identity excluded) whose best in-plane shift lays the
-    largest share of the source's occupied cells onto the target's, best first per axis.
-    O(K A (G log G + N)) for A angles and grids of G cells.
+    spacing (the caller's inlier radius; coarsened so that no grid exceeds ``GRID_CELLS`` across).
+    Returns up to ``keep`` (4, 4) motions per axis: the angles (of the ``ANGLE_STEP_DEG`` grid,
+    identity excluded) whose best in-plane shift lays the largest share of the source's occupied
+    cells onto the target's, best first per axis. All angles of an axis are correlated in one
+    batched FFT. O(K A G log G + K A N) for A angles and grids of G cells.
     """
     if len(source) < 3 or len(target) < 3 or not cell > 0:
         return []
+    from scipy.fft import irfft2, next_fast_len, rfft2
+
     centre = source.mean(axis=0)
+    angles = np.deg2rad(np.arange(ANGLE_STEP_DEG, 360.0, ANGLE_STEP_DEG))
+    cos, sin = np.cos(angles)[:, None], np.sin(angles)[:, None]
     motions = []
     for axis in np.asarray(axes, dtype=np.float64):
         axis = axis / np.linalg.norm(axis)
         basis = _plane_basis(axis)
-        flat_source = (source - centre) @ basis
-        target_grid, target_low = _occupancy(target @ basis, cell)
-        found = []
-        for angle in np.deg2rad(np.arange(ANGLE_STEP_DEG, 360.0, ANGLE_STEP_DEG)):
-            c, s = np.cos(angle), np.sin(angle)
-            turned = flat_source @ np.array([[c, s], [-s, c]])   # rows turned by +angle about axis
-            source_grid, source_low = _occupancy(turned, cell)
-            overlap = _correlation(target_grid, source_grid)
-            peak = np.unravel_index(int(np.argmax(overlap)), overlap.shape)
-            share = overlap[peak] / min(source_grid.sum(), target_grid.sum())
-            # the source grid's corner cell lands on target cell ``peak - (shape - 1)``
-            offset = (np.asarray(peak) - (np.asarray(source_grid.shape) - 1)) * cell
-            found.append((-share, float(angle), target_low + offset - source_low))
-        found.sort(key=lambda item: item[0])
-        for _, angle, shift in found[:keep]:
-            rotation = Rotation.from_rotvec(axis * angle).as_matrix()
+        flat_source, flat_target = (source - centre) @ basis, target @ basis
+        reach = float(np.linalg.norm(flat_source, axis=1).max())
+        spread = float(np.ptp(flat_target, axis=0).max())
+        step = max(cell, 2.0 * reach / GRID_CELLS, spread / GRID_CELLS)
+        target_grid, target_low = _occupancy(flat_target, step)
+        # every angle's turned source in one stack of grids with a common corner at -reach
+        x, y = flat_source[:, 0][None], flat_source[:, 1][None]
+        turned = np.stack([x * cos - y * sin, x * sin + y * cos], axis=-1)          # (A, N, 2)
+        index = np.floor((turned + reach) / step).astype(np.int64)
+        size = int(np.floor(2.0 * reach / step)) + 1
+        grids = np.zeros((len(angles), size, size), dtype=np.float32)
+        grids[np.repeat(np.arange(len(angles)), len(flat_source)), index[..., 0].ravel(), index[..., 1].ravel()] = 1.0
+        full = (target_grid.shape[0] + size - 1, target_grid.shape[1] + size - 1)
+        shape = tuple(next_fast_len(n, real=True) for n in full)      # zero padding beyond ``full`` is inert
+        overlap = irfft2(rfft2(target_grid, shape)[None] * rfft2(grids[:, ::-1, ::-1], shape, axes=(1, 2)),
+                         shape, axes=(1, 2))[:, :full[0], :full[1]]
+        flat_peak = overlap.reshape(len(angles), -1).argmax(axis=1)
+        share = overlap.reshape(len(angles), -1)[np.arange(len(angles)), flat_peak]
+        share = share / np.minimum(grids.sum(axis=(1, 2)), target_grid.sum())
+        for k in np.argsort(-share, kind="stable")[:keep]:
+            peak = np.array(np.unravel_index(flat_peak[k], full))
+            # the stack's corner cell (-reach, -reach) lands on target cell ``peak - (size - 1)``
+            shift = target_low + (peak - (size - 1)) * step + reach
+            rotation = Rotation.from_rotvec(axis * angles[k]).as_matrix()
             motion = np.eye(4)
             motion[:3, :3] = rotation
             # the centre goes to its in-plane target spot at its own height along the axis
