@@ -505,7 +505,9 @@ def score_pairs(ctx: PairContext, match_min_score: float, motion_hints: list[np.
     keys = [key for key in sorted(identity) if key[0] not in settled_start and key[1] not in settled_end]
     # the coarse samples drawn in key order, then the pairs registered side by side (pure given them)
     draws = [_coarse_samples(ctx, i, j, rng) for i, j in keys]
-    registered = in_parallel(lambda item: _register_pair(ctx, *item[0], match_min_score, item[1]), list(zip(keys, draws)))
+    registered = in_parallel(lambda item: _register_pair(ctx, *item[0], match_min_score, item[1],
+                                                         identity[item[0]] >= IDENTITY_TRUSTED_SCORE),
+                             list(zip(keys, draws)))
     registrations = dict(zip(keys, registered))
     # Pairs the cheap hypotheses explain poorly get the global registration too: the best
     # ``GLOBAL_PER_GROUP`` such pairs of every start group (the rest are not its partner anyway).
@@ -563,15 +565,19 @@ def _coarse_samples(ctx: PairContext, i: int, j: int,
 
 
 def _register_pair(ctx: PairContext, i: int, j: int, match_min_score: float,
-                   coarse_samples: tuple[np.ndarray, np.ndarray] | None) -> tuple[float, np.ndarray | None]:
+                   coarse_samples: tuple[np.ndarray, np.ndarray] | None,
+                   stays_on_itself: bool = False) -> tuple[float, np.ndarray | None]:
     """Coarse-to-fine registration of start group i onto end group j, from its coarse points
     (:func:`_coarse_samples`; None: too few points, no registration).
 
     Coarse: every cheap hypothesis (centroid shift, principal-frame turns, the smaller group's
     box slid against each face of the larger one -- a closed drawer shows only its front) is
     screened on ``COARSE_POINTS`` points per group; the best ``SUBPART_REFINE`` are refined by
-    symmetric trimmed ICP on those points, and so are the best turns about each static axis
-    (:func:`~sparseart.geometry.axis_turns.axis_turns`: every angle, the shift by correlation). A pair whose best coarse score is below ``COARSE_KEEP``
+    symmetric trimmed ICP on those points. A pair that ``stays_on_itself`` (its identity overlap is
+    trusted, ``IDENTITY_TRUSTED_SCORE``: a part turning about its own round body, whose cap lands on
+    itself) also gets the best turns about each static axis
+    (:func:`~sparseart.geometry.axis_turns.axis_turns`: every angle, the shift by correlation):
+    the screen keeps near-identity hypotheses there, and stayed-put wins unless a turn beats it. A pair whose best coarse score is below ``COARSE_KEEP``
     x ``match_min_score`` is dropped there; otherwise the best is refined on the full samples.
     Returns (score on the full samples, motion). O(H S_c log S_c + I S log S).
     """
@@ -596,17 +602,29 @@ def _register_pair(ctx: PairContext, i: int, j: int, match_min_score: float,
         refined = refine_icp(source, target, hypotheses[k], ctx.radius, source_tree=source_tree,
                              target_tree=target_tree)
         options += [(pair_score(ctx, i, j, option, coarse_samples), option) for option in (hypotheses[k], refined)]
-    # Turns about the static body's axes, searched over every angle (a part turning about its own
-    # symmetry axis lands mostly on itself: the screen above keeps the near-identity hypotheses).
-    axes = ctx.frame.T if ctx.frame is not None else np.linalg.svd(source - source.mean(axis=0), full_matrices=False)[2]
-    for turn in axis_turns(ctx.start.points[start_idx], ctx.end.points[end_idx], axes, ctx.radius):
-        refined = refine_icp(source, target, turn, ctx.radius, source_tree=source_tree, target_tree=target_tree)
-        options.append((pair_score(ctx, i, j, refined, coarse_samples), refined))
+    if stays_on_itself:   # the screen above keeps the near-identity hypotheses of such a part
+        options += _turns_about_static_axes(ctx, i, j, coarse_samples, source_tree, target_tree)
     best_score, best = prefer_small_turns(options)
     if best is None or best_score < COARSE_KEEP * match_min_score:
         return (pair_score(ctx, i, j, best) if best is not None else -1.0), best
     fine = refine_icp(ctx.start.points[start_idx], ctx.end.points[end_idx], best, ctx.radius)
     return prefer_small_turns([(pair_score(ctx, i, j, best), best), (pair_score(ctx, i, j, fine), fine)])
+
+
+def _turns_about_static_axes(ctx: PairContext, i: int, j: int, coarse_samples: tuple[np.ndarray, np.ndarray],
+                             source_tree: cKDTree, target_tree: cKDTree) -> list[tuple[float, np.ndarray]]:
+    """(coarse score, motion) of the best turns of start group i onto end group j about each of the
+    static body's axes (its principal axes when no body is known yet), found on the groups' samples
+    (:func:`~sparseart.geometry.axis_turns.axis_turns`) and refined by ICP on the coarse points
+    (whose trees are given). O(K A G log G + K I S_c log S_c)."""
+    source, target = ctx.start.points[coarse_samples[0]], ctx.end.points[coarse_samples[1]]
+    group = ctx.start.points[ctx.start_samples[i]]
+    axes = ctx.frame.T if ctx.frame is not None else np.linalg.svd(group - group.mean(axis=0), full_matrices=False)[2]
+    options = []
+    for turn in axis_turns(group, ctx.end.points[ctx.end_samples[j]], axes, ctx.radius):
+        refined = refine_icp(source, target, turn, ctx.radius, source_tree=source_tree, target_tree=target_tree)
+        options.append((pair_score(ctx, i, j, refined, coarse_samples), refined))
+    return options
 
 
 def _global_retry(ctx: PairContext, i: int, j: int, current: tuple[float, np.ndarray]) -> tuple[float, np.ndarray]:
