@@ -72,7 +72,10 @@ def _parser() -> argparse.ArgumentParser:
                           "(default 100; 0 = no budget)")
     run.add_argument("--refine-holdout", type=int, default=0,
                      help="with --refine: last views per state held out of fitting for PSNR (default 0)")
-    run.add_argument("--urdf", action="store_true", help="also write object.urdf + meshes/ (part point clouds)")
+    run.add_argument("--urdf", action="store_true",
+                     help="also write object.urdf + meshes/ (fused part meshes, convex collision pieces, inertia)")
+    run.add_argument("--mjcf", action="store_true", help="also write object.xml (MuJoCo) + meshes/")
+    run.add_argument("--usd", action="store_true", help="also write object.usda (UsdPhysics joints, meshes inside)")
     run.add_argument("--ply", action="store_true", help="also write start_parts.ply / end_parts.ply (part ids)")
     run.add_argument("--report", action="store_true", help="also write report.png (clouds, axes, stage times)")
 
@@ -275,14 +278,11 @@ def _labeler(args: argparse.Namespace):
 
 
 def _write_extras(result, args: argparse.Namespace, out_dir: Path | None = None) -> list[Path]:
-    """The --urdf / --ply / --report files beside articulation.json, in ``out_dir`` (default
+    """The --urdf / --mjcf / --usd / --ply / --report files beside articulation.json, in ``out_dir`` (default
     ``args.out``; ``_cmd_run`` passes its staging folder)."""
     out_dir = Path(args.out if out_dir is None else out_dir)
     written: list[Path] = []
-    if getattr(args, "urdf", False):
-        from sparseart.io.urdf import write_urdf
-
-        written.append(write_urdf(result, out_dir, name="object"))
+    written.extend(_write_sim_exports(result, args, out_dir))
     if getattr(args, "ply", False):
         from sparseart.io.ply import write_labelled_clouds
 
@@ -291,6 +291,35 @@ def _write_extras(result, args: argparse.Namespace, out_dir: Path | None = None)
         from sparseart.io.report import write_report
 
         written.append(write_report(result, out_dir / "report.png"))
+    return written
+
+
+def _write_sim_exports(result, args: argparse.Namespace, out_dir: Path) -> list[Path]:
+    """--urdf / --mjcf / --usd from one :class:`~sparseart.sim.model.SimModel` (surfaces, collision and
+    mass built once; nothing imported without these flags); the seconds of each step go to
+    meshes/summary.json."""
+    import time
+
+    flags = [flag for flag in ("urdf", "mjcf", "usd") if getattr(args, flag, False)]
+    if not flags:
+        return []
+    from sparseart.io.mjcf import write_mjcf
+    from sparseart.io.urdf import write_urdf
+    from sparseart.io.usd import write_usd
+    from sparseart.sim.model import build_model, write_summary
+
+    names = " / ".join(f"--{flag}" for flag in flags)
+    try:
+        model = build_model(result, name="object", seed=args.seed)
+        written = []
+        for flag in flags:
+            began = time.perf_counter()
+            written.append({"urdf": write_urdf, "mjcf": write_mjcf, "usd": write_usd}[flag](
+                result, out_dir, name="object", model=model))
+            model.seconds[flag] = time.perf_counter() - began
+    except ValueError as error:
+        raise SceneError(f"{names}: {error}") from None
+    write_summary(model, out_dir)
     return written
 
 
