@@ -21,15 +21,16 @@ from dataclasses import dataclass
 import numpy as np
 
 DENSITY = 500.0          # mass per cubic result unit (kg/m^3 for metres)
-COACD_THRESHOLD = 0.15   # coacd concavity threshold (0.01 fine .. 1 coarse)
-MAX_HULLS = 8            # convex pieces per part at most
+COACD_THRESHOLD = 0.08   # coacd concavity threshold (0.01 fine .. 1 coarse)
+MAX_HULLS = 16           # convex pieces per part at most
 COACD_TRIANGLES = 1000   # the surface is decimated to this many triangles before the decomposition
 # coacd's search made cheap: its defaults took 30-80 s per part of the rendered cabinet on the
 # shared 2-core machine, these 0.2-2 s (measured 2026-11-29, load ~12)
 COACD_SEARCH = dict(mcts_iterations=10, mcts_nodes=5, mcts_max_depth=1, resolution=300,
                     preprocess_resolution=30, max_ch_vertex=64)
 CONVEX_TOLERANCE = 0.05  # a surface within this share of its diagonal of its convex hull is its own hull
-MIN_PIECE_VOLUME_SHARE = 1e-4   # pieces thinner than this share of the part's hull volume are dropped
+MIN_PIECE_VOLUME_SHARE = 1e-4
+MIN_THICKNESS = 0.01     # mass and inertia floors: a slab this share of the part's diagonal thick   # pieces thinner than this share of the part's hull volume are dropped
 
 
 @dataclass
@@ -109,4 +110,13 @@ def part_body(vertices: np.ndarray, faces: np.ndarray, density: float = DENSITY,
     """Collision pieces and mass of one surface (see the module docstring)."""
     hulls = convex_pieces(vertices, faces, seed=seed)
     mass, com, inertia = mass_properties(hulls, density)
-    return PartBody(hulls, mass, com, inertia, density)
+    # a flat part (a sheet seen from one side) has ~no volume: floor it as a slab MIN_THICKNESS of
+    # its diagonal thick, so a simulator gets a positive mass and inertia
+    size = float(np.linalg.norm(np.ptp(np.asarray(vertices, dtype=np.float64), axis=0)))
+    floor_mass = density * (MIN_THICKNESS * size) ** 3
+    if not np.isfinite(mass) or mass < floor_mass:
+        mass, com = floor_mass, np.asarray(vertices, dtype=np.float64).mean(0)
+        inertia = np.zeros((3, 3))
+    moments, axes = np.linalg.eigh(0.5 * (inertia + inertia.T))
+    moments = np.maximum(moments, mass * (MIN_THICKNESS * size) ** 2 / 6.0)
+    return PartBody(hulls, mass, com, (axes * moments) @ axes.T, density)
