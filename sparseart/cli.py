@@ -120,6 +120,9 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--no-peer", action="store_true", help="skip the ICP baseline")
     bench.add_argument("--settings", nargs="+", default=None, metavar="NAME",
                        help="run only these settings (shell patterns, e.g. default 'realistic*' 'knob-*')")
+    bench.add_argument("--geometry", action="store_true",
+                       help="also build the URDF / MJCF / USD exports, check them in MuJoCo, PyBullet and pxr, and "
+                            "score the part meshes against the true ones (CD-s / CD-m / CD-w); needs .[sim]")
     bench.add_argument("--stability", action="store_true",
                        help="the stiff/extreme-case stability report of the joint fitter instead")
     return parser
@@ -340,7 +343,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         small = [o for o in objects if o.name in QUICK_OBJECTS]
         objects = small or objects[:3]
     result = run_bench(objects, args.out, seeds=args.seeds, quick=args.quick, peer=not args.no_peer,
-                       names=args.settings, jobs=args.jobs or default_jobs())
+                       names=args.settings, jobs=args.jobs or default_jobs(), geometry=args.geometry)
     print(report_text(result))
     print(f"wrote {args.out}/table.txt, rows.csv/json, summary.csv/json, error_vs_time.png, error_vs_factor.png")
     return 0 if result.rows else 1
