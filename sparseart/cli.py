@@ -201,6 +201,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .pipeline import RunOptions, run
 
     check_out_dir(args.out, args.scene)
+    _check_sim_extra(args)
     refine_options, render_states = _refine_settings(args) if args.refine else (None, ())
     options = RunOptions(joint_type=args.joint_type, use_masks=not args.no_masks, seed=args.seed,
                          refine=args.refine, refine_options=refine_options, segmenter=args.segmenter,
@@ -297,6 +298,18 @@ def _write_extras(result, args: argparse.Namespace, out_dir: Path | None = None)
     return written
 
 
+def _check_sim_extra(args: argparse.Namespace) -> None:
+    """Before any work: --urdf / --mjcf / --usd need the ``sim`` extra (coacd, trimesh; pxr for USD)."""
+    import importlib.util
+
+    flags = [flag for flag in ("urdf", "mjcf", "usd") if getattr(args, flag, False)]
+    needed = ["coacd", "trimesh", *(["pxr"] if "usd" in flags else [])] if flags else []
+    missing = [module for module in needed if importlib.util.find_spec(module) is None]
+    if missing:
+        names = " / ".join(f"--{flag}" for flag in flags)
+        raise SceneError(f"{names} needs {', '.join(missing)}: pip install 'sparseart[sim]' (scripts/setup.sh does)")
+
+
 def _write_sim_exports(result, args: argparse.Namespace, out_dir: Path) -> list[Path]:
     """--urdf / --mjcf / --usd from one :class:`~sparseart.sim.model.SimModel` (surfaces, collision and
     mass built once; nothing imported without these flags); the seconds of each step go to
@@ -306,12 +319,12 @@ def _write_sim_exports(result, args: argparse.Namespace, out_dir: Path) -> list[
     flags = [flag for flag in ("urdf", "mjcf", "usd") if getattr(args, flag, False)]
     if not flags:
         return []
+    names = " / ".join(f"--{flag}" for flag in flags)
     from sparseart.io.mjcf import write_mjcf
     from sparseart.io.urdf import write_urdf
     from sparseart.io.usd import write_usd
     from sparseart.sim.model import build_model, write_summary
 
-    names = " / ".join(f"--{flag}" for flag in flags)
     try:
         model = build_model(result, name="object", seed=args.seed)
         written = []

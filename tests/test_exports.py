@@ -178,3 +178,18 @@ def test_cli_run_writes_extras_beside_articulation_json(tiny_scene, tmp_path, ca
     assert "report.png" in capsys.readouterr().out
     assert not [p for p in out.rglob("*.tmp")]
     assert '<link name="base">' in (out / "object.urdf").read_text()
+
+
+def test_sim_exports_without_the_sim_extra_fail_in_one_line_before_any_work(tiny_scene, tmp_path, capsys,
+                                                                            monkeypatch):
+    import importlib.util
+
+    from sparseart.cli import main
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *rest: None if name == "coacd" else real(name, *rest))
+    out = tmp_path / "out"
+    assert main(["run", str(tiny_scene), "--out", str(out), "--mjcf"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--mjcf needs coacd" in err and "sparseart[sim]" in err
+    assert not out.exists()

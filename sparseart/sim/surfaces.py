@@ -170,13 +170,14 @@ def view_pose(camera: Camera, view: dict) -> np.ndarray | None:
 
 def _tsdf(o3d, views: list[tuple[Camera, np.ndarray, dict]], voxel: float):
     """Integrate each view's part-masked depth (colour) into open3d's TSDF voxel-block grid and
-    extract its zero level set. (The tensor ``VoxelBlockGrid``: the legacy ``ScalableTSDFVolume``
+    extract its zero level set; returns (legacy mesh, views integrated). (The tensor ``VoxelBlockGrid``: the legacy ``ScalableTSDFVolume``
     integrates nothing from these sparse masked depth images in open3d 0.20, measured.)"""
     core = o3d.core
     grid = o3d.t.geometry.VoxelBlockGrid(
         attr_names=("tsdf", "weight", "color"), attr_dtypes=(core.float32, core.float32, core.float32),
         attr_channels=((1), (1), (3)), voxel_size=voxel, block_resolution=8, block_count=BLOCK_COUNT,
         device=core.Device("CPU:0"))
+    integrated = 0
     for camera, world_to_cam, view in views:
         depth = np.zeros((camera.height, camera.width), dtype=np.float32)
         color = np.zeros((camera.height, camera.width, 3), dtype=np.float32)
@@ -187,11 +188,17 @@ def _tsdf(o3d, views: list[tuple[Camera, np.ndarray, dict]], voxel: float):
         K = core.Tensor(np.asarray(camera.K, dtype=np.float64))
         pose = core.Tensor(np.ascontiguousarray(world_to_cam, dtype=np.float64))
         far = float(depth.max()) * 2.0
-        blocks = grid.compute_unique_block_coordinates(depth_image, K, pose, depth_scale=1.0, depth_max=far,
-                                                       trunc_voxel_multiplier=float(SDF_TRUNC_VOXELS))
-        grid.integrate(blocks, depth_image, color_image, K, K, pose, depth_scale=1.0, depth_max=far,
-                       trunc_voxel_multiplier=float(SDF_TRUNC_VOXELS))
-    return grid.extract_triangle_mesh(weight_threshold=MIN_WEIGHT).to_legacy()
+        try:
+            blocks = grid.compute_unique_block_coordinates(depth_image, K, pose, depth_scale=1.0, depth_max=far,
+                                                           trunc_voxel_multiplier=float(SDF_TRUNC_VOXELS))
+            grid.integrate(blocks, depth_image, color_image, K, K, pose, depth_scale=1.0, depth_max=far,
+                           trunc_voxel_multiplier=float(SDF_TRUNC_VOXELS))
+            integrated += 1
+        except RuntimeError:   # open3d: "No block is touched" (a view's few pixels touch no block)
+            continue
+    if integrated == 0:
+        return o3d.geometry.TriangleMesh(), 0
+    return grid.extract_triangle_mesh(weight_threshold=MIN_WEIGHT).to_legacy(), integrated
 
 
 def _poisson(o3d, points: np.ndarray, colors: np.ndarray, voxel: float):
@@ -259,19 +266,19 @@ def fuse_part(result: Articulation, part_id: int, voxel: float, budget: int = TR
         pose = view_pose(camera, view)
         if pose is not None:
             posed.append((camera, pose, view))
-    mesh, method = None, "poisson"
+    mesh, method, fused = None, "poisson", 0
     if posed:
-        mesh = _clean(o3d, _tsdf(o3d, posed, voxel), budget)
-        method = "tsdf"
+        mesh, fused = _tsdf(o3d, posed, voxel)
+        mesh, method = _clean(o3d, mesh, budget), "tsdf"
     if mesh is None or len(mesh.triangles) == 0:
-        mesh, method, posed = _clean(o3d, _poisson(o3d, points, colors, voxel), budget), "poisson", []
+        mesh, method, fused = _clean(o3d, _poisson(o3d, points, colors, voxel), budget), "poisson", 0
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
     faces = np.asarray(mesh.triangles, dtype=np.int64)
     vertex_colors = (np.asarray(mesh.vertex_colors, dtype=np.float64) if mesh.has_vertex_colors()
                      else np.full((len(vertices), 3), 0.6))
     counts = {state: int(sum(len(v["points"]) for v in views if v["state"] == state)) for state in ("start", "end")}
     return PartSurface(part_id, vertices, faces, vertex_colors, method,
-                       _seen_share(vertices, faces, points, SEEN_RADIUS_VOXELS * voxel), counts, len(posed))
+                       _seen_share(vertices, faces, points, SEEN_RADIUS_VOXELS * voxel), counts, fused)
 
 
 def fuse_parts(result: Articulation, budget: int = TRIANGLE_BUDGET) -> dict[int, PartSurface]:
