@@ -7,7 +7,7 @@ USD are loaded in PyBullet, MuJoCo and pxr; every joint is driven from 0 to its 
 Stated bounds (object diagonals, :mod:`sparseart.sim.replay`): the moved part's mesh lies within
 ``LANDING_BOUND`` (3 %) of the observed end-state points of the part (mean distance of the points to
 the moved surface) while the unmoved mesh does not (a check that cannot pass by accident); no part's
-collision pieces overlap its parent's by more than ``SINK_MARGIN`` (5 %) at rest; the world axis
+collision pieces overlap its parent's by more than ``SINK_MARGIN`` (1 %) at rest; the world axis
 after loading points the fitted way in every format (dot > 0.9999).
 """
 from __future__ import annotations

@@ -138,6 +138,7 @@ def build_model(result: Articulation, name: str = "object", seed: int = 0) -> Si
                              body.hulls, body.mass, body.com, body.inertia,
                              {"method": surface.method, "seen_share": surface.seen_share, "points": surface.points,
                               "views": surface.views, "triangles": int(len(surface.faces))}))
+    _carve_parents(links, result, frame_origin, density=DENSITY)
     seconds["collision"] = time.perf_counter() - began
     joints = []
     for part, _ in result.joints:
@@ -149,6 +150,27 @@ def build_model(result: Articulation, name: str = "object", seed: int = 0) -> Si
     order = _parents_first(links, joints)
     return SimModel(name, order, joints, result.frame_kind, result.frame_reference, result.units, DENSITY,
                     object_diagonal(result), seconds)
+
+
+def _carve_parents(links: list[SimLink], result: Articulation, frame_origin: dict[int, np.ndarray],
+                   density: float) -> None:
+    """Leave each child's rest box free in its parent's collision pieces
+    (:func:`sparseart.sim.physics.carve`) and weigh the parent again, in place."""
+    from sparseart.sim.physics import carve, mass_properties
+
+    by_id = {link.part_id: link for link in links}
+    for part, _ in result.joints:
+        parent_id = part.spec.parent if part.spec.parent in frame_origin else 0
+        child, parent = by_id.get(part.spec.id), by_id.get(parent_id)
+        if child is None or parent is None or not child.hulls:
+            continue
+        rest = np.concatenate([v for v, _ in child.hulls]) + child.origin - parent.origin
+        carved = carve(parent.hulls, rest)
+        if carved:
+            parent.hulls = carved
+            mass, com, inertia = mass_properties(carved, density)
+            if np.isfinite(mass) and mass > 0:
+                parent.mass, parent.com, parent.inertia = mass, com, inertia
 
 
 def _parents_first(links: list[SimLink], joints: list[SimJoint]) -> list[SimLink]:

@@ -9,7 +9,8 @@ part's diagonal of the hull's boundary: a door, a lid, a closed drawer front) is
 piece, without coacd. Each piece is re-hulled with trimesh so it is closed and outward-wound. open3d is imported before
 coacd: the other order makes ``import open3d`` fail (``std::bad_cast``, open3d 0.20 + coacd 1.0.14).
 
-Mass: the union of the pieces at ``DENSITY`` per cubic result unit (500 kg/m^3, light wood or
+Carving (:func:`carve`): a parent's pieces leave each child's rest box free (the child was seen
+there). Mass: the union of the pieces at ``DENSITY`` per cubic result unit (500 kg/m^3, light wood or
 particle board, when the result is in metres; images do not measure density, so this is a stated
 placeholder), through trimesh's mass properties: mass, centre of mass and the inertia tensor about
 the centre of mass, in the axes of the frame the vertices are given in.
@@ -93,6 +94,44 @@ def hull_gap(vertices: np.ndarray, hull) -> float:
     offsets = np.einsum("ij,ij->i", normals, np.asarray(hull.triangles_center, dtype=np.float64))
     inside = offsets[None, :] - np.asarray(vertices, dtype=np.float64) @ normals.T   # >= 0 inside each face plane
     return float(np.percentile(inside.min(axis=1), 99))
+
+
+def carve(hulls: list[tuple[np.ndarray, np.ndarray]], child_points: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The parent's convex pieces with the child's rest box left free.
+
+    A part was seen where it rests, so that space is not solid parent: coacd's pieces of a partly
+    seen body fill its cavities (a dishwasher's rack slot, a drawer's slot) and the child would
+    rest inside its parent. Each piece meeting the oriented bounding box of ``child_points`` (the
+    child's collision vertices at rest, in the pieces' frame) is replaced by its parts outside
+    each of the box's six face planes (convex, closed by trimesh's capped plane slices; they may
+    overlap each other, which collision does not mind). Pieces clear of the box are kept as they are.
+    """
+    import trimesh
+
+    to_box, extents = trimesh.bounds.oriented_bounds(np.asarray(child_points, dtype=np.float64))
+    from_box = np.linalg.inv(to_box)
+    half = 0.5 * np.asarray(extents, dtype=np.float64)
+    carved = []
+    for vertices, faces in hulls:
+        local = np.asarray(vertices, dtype=np.float64) @ to_box[:3, :3].T + to_box[:3, 3]
+        if np.any(local.min(0) >= half) or np.any(local.max(0) <= -half):
+            carved.append((vertices, faces))          # separated along a box axis: untouched
+            continue
+        piece = trimesh.Trimesh(vertices, faces, process=False)
+        for axis in range(3):
+            for sign in (1.0, -1.0):
+                normal = np.zeros(3)
+                normal[axis] = sign
+                origin = from_box[:3, :3] @ (normal * half) + from_box[:3, 3]
+                world_normal = from_box[:3, :3] @ normal
+                try:
+                    part = trimesh.intersections.slice_mesh_plane(piece, world_normal, origin, cap=True)
+                except (ValueError, IndexError):   # the plane misses the piece or leaves nothing
+                    continue
+                if part is not None and len(part.faces) >= 4 and part.volume > MIN_PIECE_VOLUME_SHARE * piece.volume:
+                    hull = trimesh.convex.convex_hull(part.vertices)
+                    carved.append((np.asarray(hull.vertices, dtype=np.float64), np.asarray(hull.faces, dtype=np.int64)))
+    return carved
 
 
 def mass_properties(hulls: list[tuple[np.ndarray, np.ndarray]], density: float = DENSITY) -> tuple[float, np.ndarray, np.ndarray]:

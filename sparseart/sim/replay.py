@@ -25,10 +25,9 @@ import numpy as np
 from sparseart.geometry.transforms import apply_transform
 
 LANDING_BOUND = 0.03   # mean distance observed end points -> moved mesh, in object diagonals
-SINK_MARGIN = 0.05     # deepest collision overlap of a part with its parent at rest, in object diagonals:
-                       # coacd closes open fused surfaces into shells ~1/30 of the part thick (its
-                       # manifold pre-processing), so flush parts overlap: measured 1.7 % (cabinet
-                       # drawer), 3.8 % (PartNet drawer 26525). Simulators skip parent-child contacts.
+SINK_MARGIN = 0.01     # deepest collision overlap of a part with its parent at rest, in object diagonals
+                       # (the parent's pieces leave the child's rest box free, sparseart.sim.physics.carve;
+                       # what remains is the simulators' contact margin, ~0.2 % measured)
 
 
 def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:

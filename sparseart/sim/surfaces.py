@@ -158,8 +158,12 @@ def view_pose(camera: Camera, view: dict) -> np.ndarray | None:
         if _reprojection(K, world_to_cam, points, uv) <= MAX_REPROJECTION_PX:
             return world_to_cam
     step = max(1, len(points) // 2000)
-    ok, rvec, tvec = cv2.solvePnP(points[::step].astype(np.float64), uv[::step], K, None,
-                                  flags=cv2.SOLVEPNP_ITERATIVE)
+    try:
+        ok, rvec, tvec = cv2.solvePnP(np.ascontiguousarray(points[::step], dtype=np.float64),
+                                      np.ascontiguousarray(uv[::step], dtype=np.float64), K, None,
+                                      flags=cv2.SOLVEPNP_ITERATIVE)
+    except cv2.error:   # degenerate point sets (too few, collinear)
+        return None
     if not ok:
         return None
     world_to_cam = np.eye(4)
