@@ -122,6 +122,8 @@ def test_a_flipped_axis_is_caught(cabinet, tmp_path):
 def test_meshes_are_in_the_link_frame_and_summarised(cabinet):
     import json
 
+    from scipy.spatial import cKDTree
+
     from sparseart.sim.surfaces import part_motion
 
     result, model, out, _ = cabinet
@@ -135,8 +137,6 @@ def test_meshes_are_in_the_link_frame_and_summarised(cabinet):
         np.testing.assert_allclose(link.origin, joint.origin)
         surface = link.vertices + link.origin
         start = result.start_cloud.points[result.labels.start_part == part.spec.id]
-        from scipy.spatial import cKDTree
-
         assert cKDTree(surface).query(start)[0].mean() < 0.01 * model.diagonal
         assert part_motion(joint).shape == (4, 4)
 
