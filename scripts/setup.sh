@@ -19,6 +19,6 @@ if [ ! -x /usr/bin/chromium ]; then
 fi
 python3 -c "import torch" 2>/dev/null || python3 -m pip install -q --disable-pip-version-check torch==2.13.0 2>&1 \
     | grep -v -E "^WARNING: (Location|Running pip as)" || true
-python3 -m pip install -q --disable-pip-version-check -c constraints.txt -e ".[test,refine,view]" 2>&1 \
+python3 -m pip install -q --disable-pip-version-check -c constraints.txt -e ".[test,refine,view,sim]" 2>&1 \
     | grep -v -E "^WARNING: (Location|Running pip as)" || true
-python3 -c "import sparseart, open3d, cv2, scipy, torch, onnx, onnxruntime"
+python3 -c "import sparseart, open3d, cv2, scipy, torch, onnx, onnxruntime, coacd, trimesh, mujoco, pybullet, pxr"

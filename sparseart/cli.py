@@ -72,7 +72,10 @@ def _parser() -> argparse.ArgumentParser:
                           "(default 100; 0 = no budget)")
     run.add_argument("--refine-holdout", type=int, default=0,
                      help="with --refine: last views per state held out of fitting for PSNR (default 0)")
-    run.add_argument("--urdf", action="store_true", help="also write object.urdf + meshes/ (part point clouds)")
+    run.add_argument("--urdf", action="store_true",
+                     help="also write object.urdf + meshes/ (fused part meshes, convex collision pieces, inertia)")
+    run.add_argument("--mjcf", action="store_true", help="also write object.xml (MuJoCo) + meshes/")
+    run.add_argument("--usd", action="store_true", help="also write object.usda (UsdPhysics joints, meshes inside)")
     run.add_argument("--ply", action="store_true", help="also write start_parts.ply / end_parts.ply (part ids)")
     run.add_argument("--report", action="store_true", help="also write report.png (clouds, axes, stage times)")
 
@@ -127,6 +130,9 @@ def _parser() -> argparse.ArgumentParser:
     bench.add_argument("--no-peer", action="store_true", help="skip the ICP baseline")
     bench.add_argument("--settings", nargs="+", default=None, metavar="NAME",
                        help="run only these settings (shell patterns, e.g. default 'realistic*' 'knob-*')")
+    bench.add_argument("--geometry", action="store_true",
+                       help="also build the URDF / MJCF / USD exports, check them in MuJoCo, PyBullet and pxr, and "
+                            "score the part meshes against the true ones (CD-s / CD-m / CD-w); needs .[sim]")
     bench.add_argument("--stability", action="store_true",
                        help="the stiff/extreme-case stability report of the joint fitter instead")
     return parser
@@ -206,6 +212,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from .pipeline import RunOptions, run
 
     check_out_dir(args.out, args.scene)
+    _check_sim_extra(args)
     refine_options, render_states = _refine_settings(args) if args.refine else (None, ())
     options = RunOptions(joint_type=args.joint_type, use_masks=not args.no_masks, seed=args.seed,
                          refine=args.refine, refine_options=refine_options, segmenter=args.segmenter,
@@ -303,14 +310,11 @@ def _labeler(args: argparse.Namespace):
 
 
 def _write_extras(result, args: argparse.Namespace, out_dir: Path | None = None) -> list[Path]:
-    """The --urdf / --ply / --report files beside articulation.json, in ``out_dir`` (default
+    """The --urdf / --mjcf / --usd / --ply / --report files beside articulation.json, in ``out_dir`` (default
     ``args.out``; ``_cmd_run`` passes its staging folder)."""
     out_dir = Path(args.out if out_dir is None else out_dir)
     written: list[Path] = []
-    if getattr(args, "urdf", False):
-        from sparseart.io.urdf import write_urdf
-
-        written.append(write_urdf(result, out_dir, name="object"))
+    written.extend(_write_sim_exports(result, args, out_dir))
     if getattr(args, "ply", False):
         from sparseart.io.ply import write_labelled_clouds
 
@@ -319,6 +323,47 @@ def _write_extras(result, args: argparse.Namespace, out_dir: Path | None = None)
         from sparseart.io.report import write_report
 
         written.append(write_report(result, out_dir / "report.png"))
+    return written
+
+
+def _check_sim_extra(args: argparse.Namespace) -> None:
+    """Before any work: --urdf / --mjcf / --usd need the ``sim`` extra (coacd, trimesh; pxr for USD)."""
+    import importlib.util
+
+    flags = [flag for flag in ("urdf", "mjcf", "usd") if getattr(args, flag, False)]
+    needed = ["coacd", "trimesh", *(["pxr"] if "usd" in flags else [])] if flags else []
+    missing = [module for module in needed if importlib.util.find_spec(module) is None]
+    if missing:
+        names = " / ".join(f"--{flag}" for flag in flags)
+        raise SceneError(f"{names} needs {', '.join(missing)}: pip install 'sparseart[sim]' (scripts/setup.sh does)")
+
+
+def _write_sim_exports(result, args: argparse.Namespace, out_dir: Path) -> list[Path]:
+    """--urdf / --mjcf / --usd from one :class:`~sparseart.sim.model.SimModel` (surfaces, collision and
+    mass built once; nothing imported without these flags); the seconds of each step go to
+    meshes/summary.json."""
+    import time
+
+    flags = [flag for flag in ("urdf", "mjcf", "usd") if getattr(args, flag, False)]
+    if not flags:
+        return []
+    names = " / ".join(f"--{flag}" for flag in flags)
+    from sparseart.io.mjcf import write_mjcf
+    from sparseart.io.urdf import write_urdf
+    from sparseart.io.usd import write_usd
+    from sparseart.sim.model import build_model, write_summary
+
+    try:
+        model = build_model(result, name="object", seed=args.seed)
+        written = []
+        for flag in flags:
+            began = time.perf_counter()
+            written.append({"urdf": write_urdf, "mjcf": write_mjcf, "usd": write_usd}[flag](
+                result, out_dir, name="object", model=model))
+            model.seconds[flag] = time.perf_counter() - began
+    except ValueError as error:
+        raise SceneError(f"{names}: {error}") from None
+    write_summary(model, out_dir)
     return written
 
 
@@ -339,7 +384,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         small = [o for o in objects if o.name in QUICK_OBJECTS]
         objects = small or objects[:3]
     result = run_bench(objects, args.out, seeds=args.seeds, quick=args.quick, peer=not args.no_peer,
-                       names=args.settings, jobs=args.jobs or default_jobs())
+                       names=args.settings, jobs=args.jobs or default_jobs(), geometry=args.geometry)
     print(report_text(result))
     print(f"wrote {args.out}/table.txt, rows.csv/json, summary.csv/json, error_vs_time.png, error_vs_factor.png")
     return 0 if result.rows else 1

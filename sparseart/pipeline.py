@@ -392,4 +392,18 @@ def _label_and_fit(start: LabelledCloud, end: LabelledCloud, labeler: PartLabele
         clock.skip("refine", "refinement not requested (--refine)")
     return Articulation(frame_kind=frame[0], frame_reference=frame[1], units=frame[2],
                         parts=parts, stages=clock.records, warnings=warnings,
-                        start_cloud=start, end_cloud=end, labels=labels, registration=registration or {})
+                        start_cloud=start, end_cloud=end, labels=labels, registration=registration or {},
+                        cameras=_cameras(scene))
+
+
+def _cameras(scene: Scene | None) -> dict:
+    """state -> each frame's camera by frame index (the clouds' ``frame_index``); {} without a scene."""
+    if scene is None:
+        return {}
+    cameras: dict = {}
+    for state in ("start", "end"):
+        frames = scene.frames(state)
+        cameras[state] = [None] * (max((f.index for f in frames), default=-1) + 1)
+        for frame in frames:
+            cameras[state][frame.index] = frame.camera
+    return cameras

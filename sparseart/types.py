@@ -274,6 +274,9 @@ class Articulation:
     registration: how the views and the states were brought into one frame (per view: registered,
         how, inliers, residual, scale; per state alignment: method, inliers, rmse; see
         :func:`sparseart.align.scene.registration_report`); empty when unknown.
+    cameras: state -> the :class:`Camera` of each frame (list position = ``frame_index`` of the
+        clouds; None where a frame has none), for the surface fusion of the exports
+        (:mod:`sparseart.sim.surfaces`); empty for clouds given without images.
     """
 
     frame_kind: str
@@ -286,6 +289,7 @@ class Articulation:
     end_cloud: LabelledCloud | None = None
     labels: PartLabels | None = None
     registration: dict = field(default_factory=dict)
+    cameras: dict[str, list[Camera | None]] = field(default_factory=dict)
 
     @property
     def joints(self) -> list[tuple[PartResult, JointEstimate]]:

@@ -12,6 +12,8 @@ from sparseart.types import (Articulation, JointEstimate, LabelledCloud, PartLab
 from sparseart.io.urdf import write_urdf
 from sparseart.io.report import write_report
 
+from synthetic import box_surface
+
 HINGE_AXIS = np.array([0.0, 0.0, 1.0])
 HINGE_ORIGIN = np.array([0.3, -0.2, 0.4])
 DOOR_ANGLE = -0.7  # negative: the lower limit must be the angle
@@ -37,26 +39,41 @@ def _joint(kind: str, axis, origin, amount: float, transform: np.ndarray) -> Joi
 
 @pytest.fixture
 def articulation() -> Articulation:
+    return make_articulation()
+
+
+@pytest.fixture(scope="module")
+def urdf_export(tmp_path_factory):
+    """(articulation, folder) of one --urdf export of the articulation, shared by the URDF tests
+    (the surfaces and coacd pieces take seconds)."""
+    folder = tmp_path_factory.mktemp("urdf")
+    result = make_articulation()
+    return result, write_urdf(result, folder, name="object")
+
+
+def make_articulation() -> Articulation:
     """Static body (0), a door (1, revolute, negative angle), a drawer (2, prismatic) and a knob (3)
     hinged on the door (parent 1)."""
     rng = np.random.default_rng(0)
-    body = rng.uniform([-0.5, -0.5, 0.0], [0.5, 0.5, 0.8], (400, 3))
-    door = rng.uniform([0.25, -0.2, 0.0], [0.35, 0.3, 0.8], (300, 3))
-    drawer = rng.uniform([-0.2, -0.4, 0.1], [0.2, -0.3, 0.3], (200, 3))
-    knob = rng.uniform([0.45, -0.25, 0.55], [0.55, -0.15, 0.65], (50, 3))
+    counts = [6000, 3000, 2000, 500]   # points on box surfaces, dense enough for a clean Poisson surface
+    body = box_surface([1.0, 1.0, 0.8], [0.0, 0.0, 0.4], counts[0], rng)[0]
+    door = box_surface([0.1, 0.5, 0.8], [0.3, 0.05, 0.4], counts[1], rng)[0]
+    drawer = box_surface([0.4, 0.1, 0.2], [0.0, -0.35, 0.2], counts[2], rng)[0]
+    knob = box_surface([0.1, 0.1, 0.1], [0.5, -0.2, 0.6], counts[3], rng)[0]
     door_motion = transform_from_revolute(HINGE_AXIS, HINGE_ORIGIN, DOOR_ANGLE)
     drawer_motion = transform_from_prismatic(SLIDE_AXIS, SLIDE_DISTANCE)
     start = np.concatenate([body, door, drawer, knob])
+    knob_motion = transform_from_revolute(KNOB_AXIS, KNOB_ORIGIN, 0.3)   # the knob turns on the moving door
     end = np.concatenate([body, apply_transform(door_motion, door), apply_transform(drawer_motion, drawer),
-                          apply_transform(door_motion, knob)])
-    part = np.repeat([0, 1, 2, 3], [400, 300, 200, 50])
+                          apply_transform(door_motion @ knob_motion, knob)])
+    part = np.repeat([0, 1, 2, 3], counts)
     part[:10] = -1
     parts = [PartSpec(0, "static"), PartSpec(1, "movable", parent=0), PartSpec(2, "movable", parent=0),
              PartSpec(3, "movable", parent=1)]
     labels = PartLabels(parts=parts, start_part=part, end_part=part.copy())
     joints = {1: _joint("revolute", HINGE_AXIS, HINGE_ORIGIN, DOOR_ANGLE, door_motion),
               2: _joint("prismatic", SLIDE_AXIS, drawer.mean(0), SLIDE_DISTANCE, drawer_motion),
-              3: _joint("revolute", KNOB_AXIS, KNOB_ORIGIN, 0.3, transform_from_revolute(KNOB_AXIS, KNOB_ORIGIN, 0.3))}
+              3: _joint("revolute", KNOB_AXIS, KNOB_ORIGIN, 0.3, knob_motion)}
     results = [PartResult(spec, int((part == spec.id).sum() * 2), joints.get(spec.id)) for spec in parts]
     stages = [StageRecord("lift", True, 0.1, "x"), StageRecord("label", True, 0.5, "x"),
               StageRecord("fit", True, 1.2, "x"), StageRecord("refine", False, 0.0, "not requested")]
@@ -64,13 +81,16 @@ def articulation() -> Articulation:
                         _cloud("end", end), labels)
 
 
-def test_urdf_round_trip_through_yourdfpy(articulation, tmp_path):
+def test_urdf_round_trip_through_yourdfpy(urdf_export):
     yourdfpy = pytest.importorskip("yourdfpy")
-    path = write_urdf(articulation, tmp_path, name="object")
-    model = yourdfpy.URDF.load(str(path))  # loads the PLY visuals too (relative paths)
+    _, path = urdf_export
+    model = yourdfpy.URDF.load(str(path), load_collision_meshes=True)  # loads the OBJ meshes too (relative paths)
     assert model.validate()
     assert set(model.link_map) == {"base", "part_1", "part_2", "part_3"}
     assert len(model.scene.geometry) == 4
+    for link in model.link_map.values():
+        assert link.collisions and link.inertial.mass > 0
+        assert np.all(np.linalg.eigvalsh(link.inertial.inertia) > 0)
     joints = model.joint_map
     assert joints["joint_1"].type == "revolute" and joints["joint_2"].type == "prismatic"
     assert joints["joint_3"].parent == "part_1"
@@ -81,20 +101,30 @@ def test_urdf_round_trip_through_yourdfpy(articulation, tmp_path):
     assert (joints["joint_2"].limit.lower, joints["joint_2"].limit.upper) == pytest.approx((0.0, SLIDE_DISTANCE))
 
 
-def test_urdf_end_configuration_reproduces_the_end_state(articulation, tmp_path):
-    """Setting each joint to its fitted angle / distance must move every part's visual (its start
-    points in the link frame) onto where the fitted motion takes them: the frame conventions agree."""
+def test_urdf_end_configuration_reproduces_the_end_state(urdf_export):
+    """At joint position 0 every part's mesh (in its link frame) lies on its start points; setting
+    each joint to its fitted angle / distance moves it where the fitted motion takes it: the frame
+    conventions agree."""
     yourdfpy = pytest.importorskip("yourdfpy")
     import trimesh
+    from scipy.spatial import cKDTree
 
-    model = yourdfpy.URDF.load(str(write_urdf(articulation, tmp_path, name="object")))
-    model.update_cfg({"joint_1": DOOR_ANGLE, "joint_2": SLIDE_DISTANCE, "joint_3": 0.0})
+    articulation, path = urdf_export
+    model = yourdfpy.URDF.load(str(path))
     labels, start = articulation.labels.start_part, articulation.start_cloud.points
+    local = {link: np.asarray(trimesh.load(path.parent / "meshes" / f"{link}.obj", process=False).vertices)
+             for link in ("part_1", "part_2", "part_3")}
+    model.update_cfg({"joint_1": 0.0, "joint_2": 0.0, "joint_3": 0.0})
+    rest = {link: apply_transform(model.get_transform(link, "base"), v) for link, v in local.items()}
+    for part_id in (1, 2, 3):
+        points = start[labels == part_id]
+        extent = np.linalg.norm(points.max(0) - points.min(0))
+        assert cKDTree(rest[f"part_{part_id}"]).query(points)[0].mean() < 0.1 * extent
+    model.update_cfg({"joint_1": DOOR_ANGLE, "joint_2": SLIDE_DISTANCE, "joint_3": 0.0})
     for part_id, link in ((1, "part_1"), (2, "part_2"), (3, "part_3")):
-        local = np.asarray(trimesh.load(tmp_path / "meshes" / f"{link}.ply").vertices)
-        placed = apply_transform(model.get_transform(link, "base"), local)
+        placed = apply_transform(model.get_transform(link, "base"), local[link])
         motion = articulation.parts[1].joint.transform if part_id != 2 else articulation.parts[2].joint.transform
-        np.testing.assert_allclose(placed, apply_transform(motion, start[labels == part_id]), atol=1e-6)
+        np.testing.assert_allclose(placed, apply_transform(motion, rest[link]), atol=1e-6)
 
 
 def test_urdf_rejects_non_finite_joint(articulation, tmp_path):
@@ -142,9 +172,24 @@ def test_cli_run_writes_extras_beside_articulation_json(tiny_scene, tmp_path, ca
 
     out = tmp_path / "out"
     assert main(["run", str(tiny_scene), "--out", str(out), "--urdf", "--ply", "--report"]) == 0
-    for name in ("articulation.json", "object.urdf", "meshes/base.ply", "start_parts.ply", "end_parts.ply",
+    for name in ("articulation.json", "object.urdf", "meshes/base.obj", "start_parts.ply", "end_parts.ply",
                  "report.png"):
         assert (out / name).is_file(), name
     assert "report.png" in capsys.readouterr().out
     assert not [p for p in out.rglob("*.tmp")]
     assert '<link name="base">' in (out / "object.urdf").read_text()
+
+
+def test_sim_exports_without_the_sim_extra_fail_in_one_line_before_any_work(tiny_scene, tmp_path, capsys,
+                                                                            monkeypatch):
+    import importlib.util
+
+    from sparseart.cli import main
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *rest: None if name == "coacd" else real(name, *rest))
+    out = tmp_path / "out"
+    assert main(["run", str(tiny_scene), "--out", str(out), "--mjcf"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--mjcf needs coacd" in err and "sparseart[sim]" in err
+    assert not out.exists()

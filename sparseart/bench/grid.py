@@ -266,6 +266,57 @@ def _stage_stats(rows: list[dict[str, Any]]) -> dict[str, float]:
     return out
 
 
+def geometry_stats(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """With ``--geometry`` (:mod:`sparseart.bench.geometry`): medians of CD-s / CD-w over the
+    distinct scenes and of CD-m over the matched joints (object units squared), the median
+    seconds of each export step, the share of the joints whose whole motion is right
+    (:func:`~sparseart.bench.metrics.motion_right`) whose moved mesh lands within
+    ``LANDING_BOUND`` in every format, the worst sink (object diagonals) and whether every axis
+    kept its sign (dot > 0.9999) in every format. {} without geometry columns."""
+    rows = [r for r in rows if "cd_w" in r]
+    if not rows:
+        return {}
+    from sparseart.sim.replay import LANDING_BOUND
+
+    scenes = list({_scene_key(r): r for r in rows}.values())
+    out: dict[str, Any] = {}
+    for key in ("cd_s", "cd_w"):
+        values = [r[key] for r in scenes if r.get(key) is not None]
+        out[f"{key}_median"] = statistics.median(values) if values else None
+    values = [r["cd_m"] for r in rows if r.get("cd_m") is not None]
+    out["cd_m_median"] = statistics.median(values) if values else None
+    for step in ("surfaces", "collision", "urdf", "mjcf", "usd"):
+        values = [r["export_seconds"][step] for r in scenes if step in (r.get("export_seconds") or {})]
+        out[f"export_{step}_seconds_median"] = statistics.median(values) if values else None
+    right = [r for r in rows if metrics.motion_right(r) and r.get("landing_rel") is not None]
+    out["landing_within_bound"] = (sum(r["landing_rel"] <= LANDING_BOUND for r in right) / len(right)) if right else None
+    out["n_landing_checked"] = len(right)
+    sinks = [r["sink_rel"] for r in rows if r.get("sink_rel") is not None]
+    out["sink_max"] = max(sinks) if sinks else None
+    dots = [r["axis_dot"] for r in rows if r.get("axis_dot") is not None]
+    out["axis_sign_agrees"] = all(d > 0.9999 for d in dots) if dots else None
+    return out
+
+
+def geometry_table(summary: list[dict[str, Any]]) -> str:
+    """One line per setting (sparseart rows with --geometry): CD-s / CD-m / CD-w medians x 1000,
+    the median seconds of each export step, landing share, worst sink, axis signs."""
+    rows = [s for s in summary if s.get("cd_w_median") is not None]
+    if not rows:
+        return ""
+    lines = [f"{'setting':17s} {'CD-s':>7s} {'CD-m':>7s} {'CD-w':>7s} {'surf s':>6s} {'coll s':>6s} {'urdf s':>6s} "
+             f"{'mjcf s':>6s} {'usd s':>6s} {'land ok':>7s} {'sink max':>8s} {'axes':>5s}"]
+    for s in rows:
+        def k(key: str) -> str:
+            return _fmt(None if s.get(key) is None else 1000 * s[key], 2)
+        lines.append(f"{s['setting']:17s} {k('cd_s_median'):>7s} {k('cd_m_median'):>7s} {k('cd_w_median'):>7s} "
+                     + " ".join(f"{_fmt(s.get(f'export_{step}_seconds_median'), 2):>6s}"
+                                for step in ("surfaces", "collision", "urdf", "mjcf", "usd"))
+                     + f" {_fmt(s.get('landing_within_bound'), 2):>7s} {_fmt(s.get('sink_max'), 3):>8s} "
+                       f"{'ok' if s.get('axis_sign_agrees') else 'FLIP':>5s}")
+    return "\n".join(lines)
+
+
 def extra_parts(rows: list[dict[str, Any]]) -> dict[str, int]:
     """Movable parts reported that match no true joint: per distinct scene (:func:`_scene_key`)
     the predicted parts (``n_predicted``) beyond the true joints they were matched to (rows not
@@ -297,6 +348,7 @@ def aggregate(rows: list[dict[str, Any]], keys: tuple[str, ...]) -> list[dict[st
         entry.update(metrics.summarise(group))
         entry.update(_stage_stats(group))
         entry.update(extra_parts(group))
+        entry.update(geometry_stats(group))
         out.append(entry)
     return out
 
@@ -382,7 +434,10 @@ CSV_FIELDS = ("object", "category", "setting", "method", "name", "gt_type", "pre
               "axis_deg", "position", "state", "state_along", "gt_state", "render_seconds", "pipeline_seconds",
               *(f"{s}_seconds" for s in STAGES), "n_predicted", "n_warnings", "seed",
               "axis_sigma_deg", "origin_sigma", "state_sigma", "confidence", "covered_fraction", "residual_excess",
-              "residual_floor", "blocked_share")
+              "residual_floor", "blocked_share",
+              # --geometry (sparseart.bench.geometry): CDs in object units squared, landing / sink in diagonals
+              "cd_s", "cd_m", "cd_w", "landing_rel", "sink_rel", "axis_dot",
+              *(f"export_{step}_seconds" for step in ("surfaces", "collision", "urdf", "mjcf", "usd")))
 
 
 def rows_csv(rows: list[dict[str, Any]]) -> str:
@@ -393,6 +448,7 @@ def rows_csv(rows: list[dict[str, Any]]) -> str:
         flat = dict(row, n_warnings=len(row.get("warnings", [])), seed=row.get("config", {}).get("seed"),
                     category=category_of(row["object"]))
         flat.update({f"{s}_seconds": row["stage_seconds"].get(s) for s in STAGES})
+        flat.update({f"export_{k}_seconds": v for k, v in (row.get("export_seconds") or {}).items()})
         writer.writerow(flat)
     return buffer.getvalue()
 
@@ -416,10 +472,12 @@ def machine_line() -> str:
 def run_bench(objects: list[Path], out_dir: Path, seeds: list[int] | None = None, quick: bool = False,
               peer: bool = True, stream: TextIO | None = None,
               plots: bool = True, settings: list[BenchSetting] | None = None,
-              names: Sequence[str] | None = None, jobs: int = 1) -> BenchResult:
+              names: Sequence[str] | None = None, jobs: int = 1, geometry: bool = False) -> BenchResult:
     """The whole benchmark: grid x seeds x objects, outputs written into ``out_dir`` (atomically,
     file by file). ``settings`` overrides the grid (tests); ``jobs`` worker processes
-    (:func:`run_grid`). Returns the rows and summaries (per setting, object and category)."""
+    (:func:`run_grid`); ``geometry``: also the exports, their simulator check and CD-s / CD-m /
+    CD-w (:mod:`sparseart.bench.geometry`). Returns the rows and summaries (per setting, object
+    and category)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     seeds = seeds or [0]
@@ -427,7 +485,7 @@ def run_bench(objects: list[Path], out_dir: Path, seeds: list[int] | None = None
     for seed in seeds:
         grid, skipped = (settings, []) if settings is not None else grid_settings(seed, quick)
         grid = select_settings(grid, names)
-        all_settings.extend(replace(s, seed=seed) for s in grid)
+        all_settings.extend(replace(s, seed=seed, geometry=geometry) for s in grid)
     began = time.perf_counter()
     progress = Progress(len(all_settings) * len(objects), stream)
     rows, failures = run_grid(objects, out_dir, all_settings, peer=peer, progress=progress, jobs=jobs)
@@ -445,6 +503,11 @@ def report_text(result: BenchResult) -> str:
     categories = category_table(result.per_category)
     if categories:
         parts += ["", "the whole motion right per category (sparseart/peer, joints):", categories]
+    geometry = geometry_table([r for r in result.summary if r.get("method") == "sparseart"])
+    if geometry:
+        parts += ["", "exports (--geometry): CD x 1000 (object units squared), median seconds per step, moved mesh "
+                  "within the landing bound on the joints that are right, worst sink (object diagonals), axis signs:",
+                  geometry]
     note = ratio_note(result.summary)
     if note:
         parts += ["", "sparseart vs ICP peer:", note]

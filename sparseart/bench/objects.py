@@ -36,6 +36,8 @@ class BenchSetting:
     same_cameras: the end state is seen from the start state's cameras (a robot's head camera, a
     tripod); False draws fresh end cameras (a phone walked round the object between the states).
     name: label of the setting in tables and plots.
+    geometry: also build the URDF / MJCF / USD exports, check them in the simulators and score the
+    part meshes against the true ones (:mod:`sparseart.bench.geometry`; sparseart rows only).
     """
 
     views: int = 3
@@ -56,6 +58,7 @@ class BenchSetting:
     budget: str = "default"
     same_cameras: bool = True
     name: str = "default"
+    geometry: bool = False
 
     def render_key(self) -> str:
         """A folder-name-safe key of every field that changes the rendered scene."""
@@ -145,7 +148,12 @@ def evaluate_object(object_dir: str | Path, work_dir: str | Path, setting: Bench
     rows = []
     for method, outcome, seconds in outcomes:
         stage_seconds = {s.name: s.seconds for s in outcome.stages if s.ran}
-        for row in evaluate(outcome, scene, gt):
+        scored = evaluate(outcome, scene, gt)
+        if setting.geometry and method == METHOD_SPARSEART:
+            from sparseart.bench.geometry import geometry_fields
+
+            geometry_fields(outcome, scene, gt, object_dir, scored, scene_dir / f"exports_{setting.name}")
+        for row in scored:
             row.update(object=object_dir.name, setting=setting.name, method=method, render_seconds=render_seconds,
                        pipeline_seconds=seconds, stage_seconds=stage_seconds, n_predicted=len(outcome.joints),
                        warnings=list(outcome.warnings), config={**asdict(setting), "realism": realism_key(setting.realism) or "clean"})

@@ -1,5 +1,7 @@
 """URDF export of an :class:`~sparseart.types.Articulation`: a base link plus one link per movable
-part, joints spanning the observed states, part point clouds as visuals.
+part, joints spanning the observed states, fused part meshes (OBJ) as visuals, convex pieces as
+collision and inertia from them (built by :mod:`sparseart.sim.model`; the conventions below are
+shared by the MJCF and USD exports).
 
 Frames: the URDF root link ``base`` is the result's frame (world frame of a posed scene, else the
 OpenCV frame of ``start/rgb/000.png``); lengths are the result's units (metres for RGB-D input).
@@ -7,20 +9,24 @@ Every link frame is parallel to the root frame. A movable part's link frame sits
 ``origin`` (revolute: a point on the axis; prismatic: the part centre at start) and joint position
 0 is the START state: the end state is ``angle`` (radians) / ``distance`` along ``axis``. Limits
 span both observed states: revolute ``[min(0, angle), max(0, angle)]``, prismatic likewise.
-Visuals: each part's start points, expressed in its link frame, as ``meshes/<link>.ply`` (a
-vertex-only PLY with colours; referenced by a relative path). Collision geometry is omitted.
+Visuals: each part's fused surface in its link frame, ``meshes/<link>.obj`` (vertex colours;
+referenced by a relative path); collision: its coacd convex pieces ``meshes/collision/<link>_<k>.obj``;
+inertial: mass and inertia of the pieces at a stated density (:mod:`sparseart.sim.physics`).
 ``effort`` and ``velocity`` limits are placeholders (1.0): images do not measure them.
 """
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sparseart.io.ply import write_ply
 from sparseart.io.scene import write_bytes_atomic
 from sparseart.types import Articulation
+
+if TYPE_CHECKING:
+    from sparseart.sim.model import SimModel
 
 PLACEHOLDER_EFFORT = 1.0
 PLACEHOLDER_VELOCITY = 1.0
@@ -35,68 +41,61 @@ def link_name(part_id: int) -> str:
     return "base" if part_id == 0 else f"part_{part_id}"
 
 
-def urdf_tree(result: Articulation, mesh_dir: str = "meshes", name: str = "sparseart_object",
-              with_visuals: bool = True) -> ET.ElementTree:
-    """The URDF document (no files written). Parts whose parent has no link (or whose joint failed)
-    are attached to ``base``; movable parts without a joint get no link (they did not move
-    measurably). Raises ValueError when a joint holds non-finite numbers."""
-    robot = ET.Element("robot", name=name)
-    joints = {part.spec.id: (part, joint) for part, joint in result.joints}
-    frame_origin: dict[int, np.ndarray] = {0: np.zeros(3)}
-    for part_id, (_, joint) in joints.items():
-        origin = np.asarray(joint.origin, dtype=np.float64)
-        if not np.all(np.isfinite(origin)) or not np.all(np.isfinite(joint.axis)):
-            raise ValueError(f"--urdf: part {part_id} has a non-finite axis or origin")
-        frame_origin[part_id] = origin
+def urdf_tree(model: "SimModel") -> ET.ElementTree:
+    """The URDF document of a :class:`~sparseart.sim.model.SimModel` (no files written): per link a
+    visual (``meshes/<link>.obj``), one collision element per convex piece
+    (``meshes/collision/<link>_<k>.obj``) and an inertial (mass, centre of mass, inertia tensor
+    about it); per joint its origin (child link origin in the parent link frame), unit axis and
+    limits spanning both observed states."""
+    from sparseart.sim.model import collision_paths, visual_path
 
-    def add_link(part_id: int) -> None:
-        link = ET.SubElement(robot, "link", name=link_name(part_id))
-        if with_visuals:
-            visual = ET.SubElement(link, "visual")
-            ET.SubElement(visual, "origin", xyz="0 0 0", rpy="0 0 0")
-            geometry = ET.SubElement(visual, "geometry")
-            ET.SubElement(geometry, "mesh", filename=f"{mesh_dir}/{link_name(part_id)}.ply")
-
-    add_link(0)
-    for part_id, (part, joint) in joints.items():
-        parent = part.spec.parent if part.spec.parent in frame_origin else 0
-        add_link(part_id)
-        element = ET.SubElement(robot, "joint", name=f"joint_{part_id}", type=joint.type)
-        ET.SubElement(element, "parent", link=link_name(parent))
-        ET.SubElement(element, "child", link=link_name(part_id))
-        ET.SubElement(element, "origin", xyz=_fmt(frame_origin[part_id] - frame_origin[parent]), rpy="0 0 0")
-        axis = np.asarray(joint.axis, dtype=np.float64)
-        ET.SubElement(element, "axis", xyz=_fmt(axis / np.linalg.norm(axis)))
-        amount = joint.angle if joint.type == "revolute" else joint.distance
-        if amount is None or not np.isfinite(amount):
-            quantity = "angle" if joint.type == "revolute" else "distance"
-            raise ValueError(f"--urdf: part {part_id} has no finite {quantity}")
-        ET.SubElement(element, "limit", lower=_fmt(min(0.0, amount)), upper=_fmt(max(0.0, amount)),
+    robot = ET.Element("robot", name=model.name)
+    for link in model.links:
+        element = ET.SubElement(robot, "link", name=link.name)
+        inertial = ET.SubElement(element, "inertial")
+        ET.SubElement(inertial, "origin", xyz=_fmt(link.com), rpy="0 0 0")
+        ET.SubElement(inertial, "mass", value=_fmt(link.mass))
+        i = link.inertia
+        ET.SubElement(inertial, "inertia", ixx=_fmt(i[0, 0]), ixy=_fmt(i[0, 1]), ixz=_fmt(i[0, 2]),
+                      iyy=_fmt(i[1, 1]), iyz=_fmt(i[1, 2]), izz=_fmt(i[2, 2]))
+        visual = ET.SubElement(element, "visual")
+        ET.SubElement(visual, "origin", xyz="0 0 0", rpy="0 0 0")
+        ET.SubElement(ET.SubElement(visual, "geometry"), "mesh", filename=visual_path(link))
+        for path in collision_paths(link):
+            collision = ET.SubElement(element, "collision")
+            ET.SubElement(collision, "origin", xyz="0 0 0", rpy="0 0 0")
+            ET.SubElement(ET.SubElement(collision, "geometry"), "mesh", filename=path)
+    for joint in model.joints:
+        element = ET.SubElement(robot, "joint", name=joint.name, type=joint.type)
+        ET.SubElement(element, "parent", link=joint.parent)
+        ET.SubElement(element, "child", link=joint.child)
+        ET.SubElement(element, "origin", xyz=_fmt(joint.offset), rpy="0 0 0")
+        ET.SubElement(element, "axis", xyz=_fmt(joint.axis))
+        ET.SubElement(element, "limit", lower=_fmt(joint.lower), upper=_fmt(joint.upper),
                       effort=_fmt(PLACEHOLDER_EFFORT), velocity=_fmt(PLACEHOLDER_VELOCITY))
     ET.indent(robot)
     return ET.ElementTree(robot)
 
 
-def write_urdf(result: Articulation, out_dir: str | Path, name: str = "sparseart_object") -> Path:
-    """Write ``out_dir/<name>.urdf`` and ``out_dir/meshes/<link>.ply`` (each part's start points in
-    its link frame; the base link gets the static points, unassigned points are left out).
-    Files are written atomically, the URDF last. Returns the URDF path."""
+def write_urdf(result: Articulation, out_dir: str | Path, name: str = "object",
+               model: "SimModel | None" = None) -> Path:
+    """Write ``out_dir/<name>.urdf`` with the meshes it references (``meshes/<link>.obj`` in each
+    link frame, ``meshes/collision/<link>_<k>.obj``, ``meshes/summary.json``; see
+    :func:`sparseart.sim.model.write_meshes`). ``model``: an already built
+    :class:`~sparseart.sim.model.SimModel` (else built here: surfaces, coacd, mass; seconds).
+    Files are written atomically, the URDF last. Returns the URDF path.
+
+    Raises:
+        ValueError: a joint holds non-finite numbers, or the result has no labelled clouds.
+    """
+    from sparseart.sim.model import build_model, write_meshes
+
     out_dir = Path(out_dir)
-    tree = urdf_tree(result, name=name, with_visuals=result.start_cloud is not None and result.labels is not None)
-    if result.start_cloud is not None and result.labels is not None:
-        cloud, part_of = result.start_cloud, result.labels.start_part
-        for link in tree.getroot().iter("link"):
-            part_id = 0 if link.get("name") == "base" else int(link.get("name").split("_")[1])
-            origin = np.zeros(3)
-            for part, joint in result.joints:
-                if part.spec.id == part_id:
-                    origin = np.asarray(joint.origin, dtype=np.float64)
-            keep = part_of == part_id
-            write_ply(out_dir / "meshes" / f"{link.get('name')}.ply", cloud.points[keep] - origin,
-                      cloud.colors[keep])
-    comment = (f"<!-- sparseart export: frame {result.frame_kind} ({result.frame_reference}), units "
-               f"{result.units}; joint position 0 = start state -->\n")
-    payload = ('<?xml version="1.0"?>\n' + comment + ET.tostring(tree.getroot(), encoding="unicode") + "\n")
+    model = model or build_model(result, name=name)
+    tree = urdf_tree(model)
+    write_meshes(model, out_dir)
+    payload = ('<?xml version="1.0"?>\n<!-- ' + model.header() + " -->\n"
+               + ET.tostring(tree.getroot(), encoding="unicode") + "\n")
     path = out_dir / f"{name}.urdf"
     write_bytes_atomic(path, payload.encode())
     return path
