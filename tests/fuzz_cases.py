@@ -590,6 +590,18 @@ def scene_cases() -> list[Case]:
             ("threads", ("--threads", "-1"), "--threads"),
             ("refine_budget", ("--refine", "--refine-budget", "nan"), "--refine-budget"),
             ("render_states", ("--refine", "--render-states", "0,inf"), "--render-states"),
+            # issue 61: every option value is checked where it is parsed (argparse's usage error)
+            ("seed_negative", ("--seed", "-1"), "--seed"),
+            ("seed_too_large", ("--seed", str(2**31)), "--seed"),
+            ("seed_float", ("--seed", "1.5"), "--seed"),
+            ("threads_word", ("--threads", "many"), "--threads"),
+            ("vlm_timeout_inf", ("--labeler", "vlm", "--vlm-timeout", "inf"), "--vlm-timeout"),
+            ("vlm_timeout_nan", ("--vlm-timeout", "nan"), "--vlm-timeout"),
+            ("refine_iters", ("--refine", "--refine-iters", "-2"), "--refine-iters"),
+            ("refine_holdout", ("--refine", "--refine-holdout", "-1"), "--refine-holdout"),
+            ("refine_budget_negative", ("--refine-budget", "-0.5"), "--refine-budget"),
+            ("conf_threshold", ("--conf-threshold", "1.5"), "--conf-threshold"),
+            ("matcher_min_score", ("--matcher-min-score", "-0.1"), "--matcher-min-score"),
             ("vlm_bad_url", ("--labeler", "vlm", "--vlm-base-url", "file:///etc/passwd", "--vlm-model", "m"),
              "base URL")]:
         add(Case(f"option_{name}", "bad options", lambda s, c=culprit: c, args=args))
