@@ -15,6 +15,47 @@ from pathlib import Path
 from .errors import SceneError
 
 EXIT_BAD_INPUT = 2
+# Option ranges, checked where the options are parsed (argparse's one-line usage error, exit 2).
+MAX_SEED = 2**31 - 1          # open3d's generator takes a C int; derived seeds wrap (geometry.o3d.seeded)
+SEED_HELP = f"random seed, 0 .. {MAX_SEED} (default 0)"
+MIN_RENDER_SIDE = 16          # pixels: fewer leave no object to see
+MAX_RENDER_SIDE = 4096        # pixels: the scene reader's image cap (io.validate.MAX_IMAGE_PIXELS = 4096^2)
+MAX_DEPTH_NOISE = 1.0         # a multiplicative depth sigma of 100 % is beyond any sensor
+
+
+def _integer(low: int, high: int | None = None):
+    """argparse ``type`` of an integer option in [low, high] (high None: no upper bound); a value
+    outside is argparse's usage error naming the option."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text, 10)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < low or (high is not None and value > high):
+            bounds = f">= {low}" if high is None else f"in {low} .. {high}"
+            raise argparse.ArgumentTypeError(f"must be an integer {bounds}, got {value}")
+        return value
+    return parse
+
+
+def _number(low: float, high: float | None = None, low_open: bool = False):
+    """argparse ``type`` of a finite float option in [low, high] ((low, high] with ``low_open``;
+    high None: no upper bound); NaN, infinities and values outside are usage errors."""
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+        below = value <= low if low_open else value < low
+        if not math.isfinite(value) or below or (high is not None and value > high):
+            bounds = (f"{'>' if low_open else '>='} {low:g}" if high is None else
+                      f"in {'(' if low_open else '['}{low:g}, {high:g}]")
+            raise argparse.ArgumentTypeError(f"must be a finite number {bounds}, got {text}")
+        return value
+    return parse
+
+
+_seed = _integer(0, MAX_SEED)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -40,14 +81,14 @@ def _parser() -> argparse.ArgumentParser:
                       help="pointmap-onnx/1 contract JSON (default: sidecar, model metadata, built-in preset)")
     onnx.add_argument("--onnx-mode", choices=["auto", "joint", "per_state"], default="auto",
                       help="one pass over both states (joint) or one per state, aligned after (default auto)")
-    onnx.add_argument("--conf-threshold", type=float, default=None,
+    onnx.add_argument("--conf-threshold", type=_number(0.0, 1.0), default=None,
                       help="drop pixels whose confidence (mapped to [0, 1]) is below this")
-    onnx.add_argument("--threads", type=int, default=0, help="onnxruntime threads (0 = physical cores)")
+    onnx.add_argument("--threads", type=_integer(0), default=0, help="onnxruntime threads (0 = physical cores)")
     onnx.add_argument("--matcher", default=None,
                       help="learned matcher for unposed scenes instead of SIFT: xfeat:DET.onnx,MATCHER.onnx "
                            "(XFeat + LighterGlue), xfeat:DET.onnx (mutual nearest neighbours), a "
                            "sparseart-matcher/1 .json, or a LightGlue-ONNX pipeline export (.onnx)")
-    onnx.add_argument("--matcher-min-score", type=float, default=None,
+    onnx.add_argument("--matcher-min-score", type=_number(0.0, 1.0), default=None,
                       help="drop (Lighter/Light)Glue matches scoring below this (default 0.1)")
     vlm = run.add_argument_group("part labeler")
     vlm.add_argument("--labeler", choices=["rules", "vlm"], default="rules",
@@ -55,22 +96,22 @@ def _parser() -> argparse.ArgumentParser:
                           "$SPARSEART_VLM_API_KEY)")
     vlm.add_argument("--vlm-base-url", default=None, help="e.g. http://127.0.0.1:8000/v1 ($SPARSEART_VLM_BASE_URL)")
     vlm.add_argument("--vlm-model", default=None, help="model name ($SPARSEART_VLM_MODEL)")
-    vlm.add_argument("--vlm-timeout", type=float, default=30.0, help="seconds per request (default 30)")
-    vlm.add_argument("--vlm-pairs", type=int, default=3, help="image pairs to ask about (default 3)")
+    vlm.add_argument("--vlm-timeout", type=_number(0.0, low_open=True), default=30.0, help="seconds per request (default 30)")
+    vlm.add_argument("--vlm-pairs", type=_integer(1), default=3, help="image pairs to ask about (default 3)")
     run.add_argument("--json", action="store_true", help="print articulation.json instead of a summary")
-    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--seed", type=_seed, default=0, help=SEED_HELP)
     run.add_argument("--budget", choices=["fast", "default", "best"], default="default",
                      help="joint-fit budget: fast (~0.7x the fit time), default, best (~2x; dense real captures)")
     run.add_argument("--refine", action="store_true",
                      help="refine the joints with 3D Gaussians (SPLART; needs torch); writes PLY and renders")
     run.add_argument("--render-states", default="0,0.5,1",
                      help="with --refine: articulation states to render, fractions of the motion (default 0,0.5,1)")
-    run.add_argument("--refine-iters", type=int, default=None,
+    run.add_argument("--refine-iters", type=_integer(0), default=None,
                      help="with --refine: cross-mobile rendering steps; the other stages scale with it (default 80)")
-    run.add_argument("--refine-budget", type=float, default=None,
+    run.add_argument("--refine-budget", type=_number(0.0), default=None,
                      help="with --refine: seconds for all parts of the object, shared between them "
                           "(default 100; 0 = no budget)")
-    run.add_argument("--refine-holdout", type=int, default=0,
+    run.add_argument("--refine-holdout", type=_integer(0), default=0,
                      help="with --refine: last views per state held out of fitting for PSNR (default 0)")
     run.add_argument("--urdf", action="store_true",
                      help="also write object.urdf + meshes/ (fused part meshes, convex collision pieces, inertia)")
@@ -91,20 +132,20 @@ def _parser() -> argparse.ArgumentParser:
 
     demo = commands.add_parser("demo", help="render a procedural cabinet and recover its joints")
     demo.add_argument("--views", type=int, default=3, choices=[1, 2, 3, 4])
-    demo.add_argument("--seed", type=int, default=0)
+    demo.add_argument("--seed", type=_seed, default=0, help=SEED_HELP)
     demo.add_argument("--keep", type=Path, default=None, help="keep the rendered scene and result here")
 
     render = commands.add_parser("render", help="render a PartNet-Mobility object at two joint states")
     render.add_argument("object_dir", type=Path, help="object folder with mobility.urdf")
     render.add_argument("scene", type=Path, help="scene folder to write")
     render.add_argument("--views", type=int, default=3, choices=[1, 2, 3, 4])
-    render.add_argument("--seed", type=int, default=0)
-    render.add_argument("--width", type=int, default=320)
-    render.add_argument("--height", type=int, default=240)
+    render.add_argument("--seed", type=_seed, default=0, help=SEED_HELP)
+    render.add_argument("--width", type=_integer(MIN_RENDER_SIDE, MAX_RENDER_SIDE), default=320)
+    render.add_argument("--height", type=_integer(MIN_RENDER_SIDE, MAX_RENDER_SIDE), default=240)
     render.add_argument("--unposed", action="store_true", help="omit cam_to_world from cameras.json")
     render.add_argument("--scramble-masks", action="store_true", help="random mask ids per image")
     render.add_argument("--no-masks", action="store_true", help="write no masks")
-    render.add_argument("--depth-noise", type=float, default=0.0, help="multiplicative depth noise sigma")
+    render.add_argument("--depth-noise", type=_number(0.0, MAX_DEPTH_NOISE), default=0.0, help="multiplicative depth noise sigma")
     real = render.add_argument_group(
         "realism (sparseart.datasets.realism)",
         "each knob is a level: 0 = off, 1 = its default strength (below), other values scale it (max 5); "
@@ -112,21 +153,21 @@ def _parser() -> argparse.ArgumentParser:
         "--realism realistic --occluder 0 --jpeg 0.5")
     real.add_argument("--realism", choices=["clean", "realistic"], default="clean",
                       help="clean (default: the plain raycast, unchanged scenes) or realistic (every knob at 1)")
-    from .datasets.knobs import KNOB_TABLE
+    from .datasets.knobs import KNOB_TABLE, MAX_LEVEL
 
     for knob, (what, at_one) in KNOB_TABLE.items():
-        real.add_argument(_knob_flag(knob), type=float, default=None, metavar="LEVEL", dest=f"realism_{knob}",
+        real.add_argument(_knob_flag(knob), type=_number(0.0, MAX_LEVEL), default=None, metavar="LEVEL", dest=f"realism_{knob}",
                           help=f"{what} (at 1: {at_one})".replace("%", "%%"))
     bench = commands.add_parser("bench", help="accuracy against run time over rendered objects, with an ICP peer")
     bench.add_argument("--objects", type=Path, nargs="+", default=None,
                        help="object folders (or folders of them); default ../shared/data/partnet")
     bench.add_argument("--corpus", action="store_true",
                        help="the whole corpus: ../shared/data/partnet, partnet-more and partnet-twins")
-    bench.add_argument("--jobs", type=int, default=None, metavar="N",
+    bench.add_argument("--jobs", type=_integer(1), default=None, metavar="N",
                        help="scenes evaluated side by side in N processes (default: every core; same rows as 1)")
     bench.add_argument("--out", type=Path, default=Path("bench_out"), help="results and scene cache folder")
     bench.add_argument("--quick", action="store_true", help="about a minute: 3 small objects, default setting")
-    bench.add_argument("--seeds", type=int, nargs="+", default=[0], help="render/run seeds (default 0)")
+    bench.add_argument("--seeds", type=_seed, nargs="+", default=[0], help="render/run seeds (default 0)")
     bench.add_argument("--no-peer", action="store_true", help="skip the ICP baseline")
     bench.add_argument("--settings", nargs="+", default=None, metavar="NAME",
                        help="run only these settings (shell patterns, e.g. default 'realistic*' 'knob-*')")
@@ -216,7 +257,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     refine_options, render_states = _refine_settings(args) if args.refine else (None, ())
     options = RunOptions(joint_type=args.joint_type, use_masks=not args.no_masks, seed=args.seed,
                          refine=args.refine, refine_options=refine_options, segmenter=args.segmenter,
-                         model=args.model, onnx_options=_onnx_settings(args), threads=_threads(args),
+                         model=args.model, onnx_options=_onnx_settings(args), threads=args.threads,
                          matcher=args.matcher, matcher_min_score=_matcher_min_score(args),
                          fit=FitConfig.for_budget(args.budget), second_opinion=not args.no_second_opinion)
     labeler = _labeler(args)
@@ -258,20 +299,12 @@ def _cmd_view(args: argparse.Namespace) -> int:
     return serve(data, host=args.host, port=args.port, seconds=args.seconds, up=args.up)
 
 
-def _threads(args: argparse.Namespace) -> int:
-    if args.threads < 0:
-        raise SceneError(f"--threads must be >= 0, got {args.threads}")
-    return args.threads
-
 
 def _matcher_min_score(args: argparse.Namespace) -> float | None:
-    """--matcher-min-score, checked (None: the matcher's own default)."""
+    """--matcher-min-score (None: the matcher's own default; its range is checked by the parser)."""
     if args.matcher is None and args.matcher_min_score is not None:
         raise SceneError("--matcher-min-score needs --matcher")
-    score = args.matcher_min_score
-    if score is not None and not 0.0 <= score <= 1.0:
-        raise SceneError(f"--matcher-min-score must lie in [0, 1], got {score}")
-    return score
+    return args.matcher_min_score
 
 
 def _onnx_settings(args: argparse.Namespace):
@@ -283,8 +316,6 @@ def _onnx_settings(args: argparse.Namespace):
         return None
     from .lift.onnx_model import OnnxLiftOptions
 
-    if args.threads < 0:
-        raise SceneError(f"--threads must be >= 0, got {args.threads}")
     try:
         return OnnxLiftOptions(contract_path=args.contract, mode=args.onnx_mode,
                                confidence_threshold=args.conf_threshold, threads=args.threads)
@@ -298,10 +329,6 @@ def _labeler(args: argparse.Namespace):
         return None
     from .labelers.vlm import VlmLabeler, VlmLabelerConfig
 
-    if args.vlm_pairs < 1:
-        raise SceneError(f"--vlm-pairs must be >= 1, got {args.vlm_pairs}")
-    if not args.vlm_timeout > 0:
-        raise SceneError(f"--vlm-timeout must be > 0, got {args.vlm_timeout}")
     try:
         return VlmLabeler(args.vlm_base_url, args.vlm_model, timeout=args.vlm_timeout,
                           config=VlmLabelerConfig(max_pairs=args.vlm_pairs))
@@ -377,8 +404,6 @@ def _cmd_bench(args: argparse.Namespace) -> int:
         return 0
     from sparseart.bench.grid import QUICK_OBJECTS, corpus_dirs, default_jobs, find_objects, report_text, run_bench
 
-    if args.jobs is not None and args.jobs < 1:
-        raise SceneError(f"--jobs {args.jobs}: must be at least 1")
     objects = find_objects([*(args.objects or []), *(corpus_dirs() if args.corpus else [])] or None)
     if args.quick:
         small = [o for o in objects if o.name in QUICK_OBJECTS]
@@ -391,7 +416,8 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _refine_settings(args: argparse.Namespace):
-    """(RefineOptions, render-state fractions) from the run command's --refine-* options."""
+    """(RefineOptions, render-state fractions) from the run command's --refine-* options (their
+    ranges are checked by the parser)."""
     from .refine.api import RefineOptions, with_iterations
 
     try:
@@ -402,14 +428,8 @@ def _refine_settings(args: argparse.Namespace):
         raise SceneError(f"--render-states: expected finite numbers, got {args.render_states!r}")
     options = RefineOptions(seed=args.seed, holdout_views=args.refine_holdout)
     if args.refine_iters is not None:
-        if args.refine_iters < 0:
-            raise SceneError(f"--refine-iters must be >= 0, got {args.refine_iters}")
         options = with_iterations(options, args.refine_iters)
-    if args.refine_holdout < 0:
-        raise SceneError(f"--refine-holdout must be >= 0, got {args.refine_holdout}")
     if args.refine_budget is not None:
-        if not math.isfinite(args.refine_budget) or args.refine_budget < 0:
-            raise SceneError(f"--refine-budget must be >= 0 seconds, got {args.refine_budget}")
         options.object_budget_seconds = args.refine_budget or None
     return options, states
 

@@ -108,6 +108,8 @@ def run(scene: Scene | str | Path, labeler: PartLabeler | None = None,
         with clock.stage("read", "scene folder"):
             scene = load_scene(scene, require_depth=options.model is None)
     scene = _segment(scene, options, clock)
+    if _segmenter_spec(scene, options) != "none" and not scene.has_masks:   # fragmented masks dropped
+        options = replace(options, use_masks=False)
     with clock.stage("lift", _lift_reason(scene, options)):
         lifted = lift_scene(scene, reject_flying_pixels=options.reject_flying_pixels, model=options.model,
                             onnx_options=options.onnx_options)
@@ -292,15 +294,14 @@ def _segment(scene: Scene, options: RunOptions, clock: StageClock) -> Scene:
         clock.skip("segment", "masks not used: parts come from a motion split")
         if not any(f.mask is not None for f in scene.all_frames):
             return scene
-        return replace(scene, start=[replace(f, mask=None, mask_path=None) for f in scene.start],
-                       end=[replace(f, mask=None, mask_path=None) for f in scene.end])
+        return _without_masks(scene)
     if spec == "given":
         if not scene.has_masks:
             missing = next(f for f in scene.all_frames if f.mask is None)
             raise SceneError(f"{missing.rgb_path}: segmenter 'given' needs a mask for every image "
                              f"({missing.state}/mask/{missing.rgb_path.stem}.png is missing)")
         clock.skip("segment", "masks given in the scene folder")
-        return scene
+        return _without_fragmented_masks(scene)
     from sparseart.segment import make_segmenter, segment_scene
 
     try:
@@ -315,6 +316,36 @@ def _segment(scene: Scene, options: RunOptions, clock: StageClock) -> Scene:
         except ValueError as error:
             raise SceneError(str(error)) from None
     return scene
+
+
+def _without_masks(scene: Scene) -> Scene:
+    """A copy of the scene whose frames carry no mask (the arrays are shared, not copied)."""
+    return replace(scene, start=[replace(f, mask=None, mask_path=None) for f in scene.start],
+                   end=[replace(f, mask=None, mask_path=None) for f in scene.end])
+
+
+def _without_fragmented_masks(scene: Scene) -> Scene:
+    """The scene with its given masks unchanged, or -- when any image's masks cut the object into
+    far more pieces than parts could be (:func:`sparseart.segment.base.fragmented_frames`) -- a
+    copy without masks and a warning naming those images: the parts are then split by motion, as
+    with ``use_masks=False`` (:func:`run` reads the missing masks so). Only the scene's own masks
+    are judged: they claim to be part masks, while the built-in and SAM segmenters over-segment by
+    design and their segments are merged by motion in the labeler."""
+    from sparseart.segment.base import MAX_EFFECTIVE_SEGMENTS, effective_segments, fragmented_frames
+
+    fragmented = fragmented_frames(scene.all_frames)
+    if not fragmented:
+        return scene
+    named = ", ".join(f"{f.state}/mask/{f.mask_path.name if f.mask_path else f.rgb_path.stem + '.png'} "
+                      f"({effective_segments(f.mask, None if f.depth is None else f.depth > 0):.0f})"
+                      for f in fragmented[:4])
+    more = f" and {len(fragmented) - 4} more" if len(fragmented) > 4 else ""
+    stripped = _without_masks(scene)
+    stripped.warnings = [*scene.warnings,
+                         f"masks not used: {named}{more} cut the object into more than "
+                         f"{MAX_EFFECTIVE_SEGMENTS:.0f} pieces of similar size (effective segments), far "
+                         f"more than parts; parts come from a motion split as with --no-masks"]
+    return stripped
 
 
 def _labelled_cloud(scene: Scene, state: str, pointmaps: list, segmenter: str) -> LabelledCloud:

@@ -122,3 +122,40 @@ def test_no_second_opinion_flag_skips_the_second_labelling(cabinet_scene: Path, 
         assert main(["run", str(cabinet_scene), "--out", str(out), "--no-masks", *flags]) == 0
         stages = {s["name"]: s for s in json.loads((out / "articulation.json").read_text())["stages"]}
         assert stages["second_opinion"]["ran"] is ran, stages["second_opinion"]
+
+
+@pytest.mark.parametrize("argv, flag", [
+    (["demo", "--seed", "-1"], "--seed"),
+    (["render", "obj", "scene", "--seed", "-1"], "--seed"),
+    (["render", "obj", "scene", "--width", "0"], "--width"),
+    (["render", "obj", "scene", "--height", "100000"], "--height"),
+    (["render", "obj", "scene", "--depth-noise", "-0.01"], "--depth-noise"),
+    (["render", "obj", "scene", "--depth-noise", "nan"], "--depth-noise"),
+    (["render", "obj", "scene", "--jpeg", "6"], "--jpeg"),
+    (["render", "obj", "scene", "--depth-noise-level", "-1"], "--depth-noise-level"),
+    (["bench", "--jobs", "0"], "--jobs"),
+    (["bench", "--seeds", "0", "-1"], "--seeds"),
+    (["run", "scene", "--out", "o", "--seed", "-1"], "--seed"),
+    (["run", "scene", "--out", "o", "--vlm-pairs", "0"], "--vlm-pairs"),
+])
+def test_bad_option_values_are_usage_errors(argv: list[str], flag: str, tmp_path: Path, capfd,
+                                            monkeypatch) -> None:
+    """Issue 61: an option value out of range is argparse's usage error where it is parsed: exit
+    2, one stderr line naming the option, nothing run or written (was: ``--seed -1`` an internal
+    error, exit 1)."""
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    captured = capfd.readouterr()
+    lines = [line for line in captured.err.splitlines() if line.strip()]
+    assert len(lines) == 1 and f"argument {flag}" in lines[0], captured.err
+    assert "internal error" not in captured.err and captured.out == ""
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_largest_seed_runs(tmp_path: Path) -> None:
+    """The largest accepted seed reaches every stage's own seed (derived seeds wrap for open3d)."""
+    scene = tmp_path / "scene"
+    render_synth_scene(scene, views=1, seed=0, width=80, height=60)
+    from sparseart.cli import MAX_SEED
+
+    assert main(["run", str(scene), "--out", str(tmp_path / "out"), "--seed", str(MAX_SEED), "--no-masks"]) == 0

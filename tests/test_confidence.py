@@ -275,3 +275,16 @@ def test_fit_rejects_bad_confidence() -> None:
                      end_confidence=np.full(len(end), np.nan))
     with pytest.raises(ValueError, match="start_confidence"):
         prepare_part(start, end, config, cache=False, start_confidence=start_conf[:-1])
+
+
+def test_measurable_motion_needs_a_gain_beyond_sampling() -> None:
+    """Issue 61: a motion that lays no more of the part onto the other state than no motion does
+    is not a measurement; a clear gain is, and the bar shrinks with more points."""
+    from sparseart.joints.reliability import measurable_motion
+
+    assert not measurable_motion(0.93, 0.935, 233, 229)      # a noisy floor's fitted 10 cm slide
+    assert not measurable_motion(0.976, 0.974, 1322, 1290)   # a still box under 1 % noise
+    assert measurable_motion(0.996, 0.097, 1500, 1500)       # the door, turned 37 deg
+    assert measurable_motion(0.885, 0.273, 1500, 1500)       # the faucet handle
+    assert not measurable_motion(0.95, 0.92, 40, 40) and measurable_motion(0.95, 0.92, 4000, 4000)
+    assert not measurable_motion(1.0, 1.0, 1500, 1500) and not measurable_motion(0.9, 0.1, 0, 10)

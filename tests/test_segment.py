@@ -299,3 +299,39 @@ def test_sam_model_errors(sam_models, tmp_path):
     junk.write_bytes(b"not a model")
     with pytest.raises(ValueError, match="junk.onnx: SAM decoder: not a valid ONNX model"):
         SamSegmenter(sam_models["encoder"], junk)
+
+
+# ---------------------------------------------------------------------- fragmented part masks (issue 61)
+
+
+def test_effective_segments_counts_similar_pieces_not_specks() -> None:
+    from sparseart.segment.base import effective_segments
+
+    halves = np.repeat(np.array([[1, 2]]), 4, axis=0).repeat(8, axis=1)       # two equal parts
+    assert effective_segments(halves) == pytest.approx(2.0)
+    blocks = (np.arange(64).reshape(8, 8) + 1)                                  # 64 one-pixel ids
+    assert effective_segments(blocks) == pytest.approx(64.0)
+    frayed = np.ones((100, 100), np.int64)
+    frayed[0, :20] = np.arange(2, 22)                                           # 20 specks on one part
+    assert effective_segments(frayed) < 1.01
+    assert effective_segments(np.zeros((4, 4), np.int64)) == 0.0
+    valid = np.zeros((8, 8), bool)
+    valid[:, :4] = True                                                         # depth on the left half only
+    assert effective_segments(np.where(np.arange(8)[None, :] < 4, 1, 2).repeat(8, 0), valid) == pytest.approx(1.0)
+
+
+def test_fragmented_frames_name_checkerboards_not_part_masks() -> None:
+    from sparseart.segment.base import MAX_EFFECTIVE_SEGMENTS, fragmented_frames
+
+    rows, cols = np.mgrid[0:120, 0:160]
+    parts = np.where(cols < 60, 1, np.where(rows < 60, 2, 3))
+    checker = (rows // 16) * 10 + cols // 16 + 1
+    depth = np.ones((120, 160))
+
+    def frame(mask, index):
+        return Frame(state="start", index=index, rgb_path=Path(f"rgb/{index:03d}.png"),
+                     rgb=np.zeros((120, 160, 3), np.uint8), depth=depth, mask=mask)
+
+    found = fragmented_frames([frame(parts, 0), frame(checker, 1), frame(None, 2)])
+    assert [f.index for f in found] == [1]
+    assert MAX_EFFECTIVE_SEGMENTS >= 3 * 3.1   # the corpus' part masks stay far below it

@@ -122,7 +122,8 @@ def seeded(seed: int) -> Iterator[ModuleType]:
     input and seed run from 4 threads, 4-8 differed from the same call alone; with this lock none.
     The labeler's pair registrations and the view graph's edges run side by side in threads
     (:func:`sparseart.parallel.in_parallel`), so a scene's answer could change with the machine's
-    load. Read what the call returns inside the block."""
+    load. Read what the call returns inside the block. open3d takes a C int: seeds are reduced
+    modulo 2**31 (a stage's derived seed, ``seed + 104729``, stays valid for every CLI seed)."""
     with _RANDOM_LOCK, serial() as o3d:
-        o3d.utility.random.seed(seed)
+        o3d.utility.random.seed(int(seed) % 2**31)
         yield o3d

@@ -20,7 +20,7 @@ from sparseart.joints.body_axes import along_body_axes, static_body_axes
 from sparseart.joints.clean import estimate_normals
 from sparseart.joints.fit import FitConfig, fit_joint
 from sparseart.joints.free_space_check import MotionCost, check_free_space, scene_views
-from sparseart.joints.reliability import HALF_TURN_DEG, MAX_AXIS_SIGMA_DEG
+from sparseart.joints.reliability import HALF_TURN_DEG, MAX_AXIS_SIGMA_DEG, measurable_motion
 from sparseart.joints.siblings import slides_like_siblings
 from sparseart.joints.sweep_check import check_turn
 from sparseart.joints.uncertainty import frame_misfit, joint_gap, raise_sigma
@@ -43,6 +43,8 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
     angle the views contradict least (:func:`~sparseart.joints.free_space_check.check_free_space`).
     A joint's confidence is multiplied by the labeler's trust in its part's pairing
     (``labels.confidence``; ``diagnostics["pairing_confidence"]`` when below 1).
+    A fitted motion that no motion explains as well (the states agree within the depth noise:
+    :func:`~sparseart.joints.reliability.measurable_motion`) is no joint, with a warning.
     The stated uncertainty gains the static frame's own error (:func:`~sparseart.joints.uncertainty.
     frame_misfit`: how far the static part's two states disagree beyond their sampling).
     Returns one :class:`PartResult` per part of ``labels``; appends warnings prefixed by the part."""
@@ -102,6 +104,11 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
                                             {pid: inputs[pid][1] for pid in fitted}, free_type, body_axes)
     for pid, joint in turned_to_slides.items():
         fitted[pid].joint = joint
+    unmeasured = [pid for pid, r in fitted.items() if not _measured(r.joint, pid, warnings)]
+    for pid in unmeasured:
+        fitted.pop(pid).joint = None
+    if unmeasured and not fitted:
+        warnings.append("no part moved measurably between the two states: they agree within the depth noise")
     turns = any(r.joint.type == "revolute" for r in fitted.values())
     static_both = _static_tree(start, end, labels) if turns else None
     for pid, result in fitted.items():
@@ -118,6 +125,23 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
             joint.confidence *= pairing
         warnings.extend(f"part {pid}: {w}" for w in joint.warnings)
     return results
+
+
+def _measured(joint: JointEstimate, pid: int, warnings: list[str]) -> bool:
+    """Whether the part's fitted motion is a measurement (:func:`~sparseart.joints.reliability.
+    measurable_motion`: it lays more of the part onto the other state than no motion, beyond
+    sampling); if not, says so in ``warnings`` (the caller drops the joint). A joint without the
+    fit's coverage diagnostics counts as measured."""
+    covered, unmoved = joint.diagnostics.get("covered_fraction"), joint.diagnostics.get("covered_unmoved")
+    counts = joint.diagnostics.get("match_points")
+    if covered is None or unmoved is None or counts is None or measurable_motion(covered, unmoved, *counts):
+        return True
+    amount = (f"{np.degrees(joint.angle):.3g} deg turn" if joint.type == "revolute"
+              else f"{joint.distance:.3g} slide")
+    warnings.append(f"part {pid}: no measurable motion, no joint: its two states agree without any motion "
+                    f"({100 * unmoved:.0f} % of its points on the other state) as well as under the fitted "
+                    f"{amount} ({100 * covered:.0f} %), i.e. within the depth noise")
+    return False
 
 
 def _static_tree(start: LabelledCloud, end: LabelledCloud, labels: PartLabels) -> tuple[cKDTree, float] | None:

@@ -372,7 +372,9 @@ def _estimate(fit: ModelFit, part: PartData, covariances: dict[str, np.ndarray],
     floor = residual_floor(part, config)
     covered = covered_fraction(part.match.start, part.match.end, part.match.end_tree, fit.rotation, fit.translation,
                                fit.tau)
+    unmoved = covered_fraction(part.match.start, part.match.end, part.match.end_tree, np.eye(3), np.zeros(3), fit.tau)
     diagnostics.update({"pairs": fit.pairs, "match_fraction": fit.match_fraction, "covered_fraction": covered,
+                        "covered_unmoved": unmoved, "match_points": [len(part.match.start), len(part.match.end)],
                         "condition": fit.condition,
                         "residual_floor": floor * scale,
                         "part_radius": part_radius * scale, "warning_codes": [w.code.value for w in warnings],

@@ -5,7 +5,8 @@ lowered by codes, never by searching the text. ``JointEstimate.warnings`` keeps 
 ``diagnostics["warning_codes"]`` the codes, in the same order. The thresholds are module constants
 shared with ``sparseart.bench.stability`` (it imports them to mark "unreliable" rows the same way).
 The warning functions are O(1) on the fit's summary numbers; ``scatter_fraction`` and
-``inlier_fraction`` measure the outlier test's two inputs; ``covered_fraction`` the confidence's coverage term.
+``inlier_fraction`` measure the outlier test's two inputs; ``covered_fraction`` the confidence's coverage term;
+``measurable_motion`` whether a fitted motion is a measurement at all (it beats no motion beyond the noise).
 """
 from __future__ import annotations
 
@@ -27,6 +28,8 @@ MAX_RELATIVE_SIGMA = 0.25    # stated angle / distance 1-sigma above this fracti
 COLLINEAR_RATIO = 1e-4       # second / first principal variance below this: a thin rod
 PLANAR_RATIO = 1e-4          # third / first principal variance below this: a flat part
 CONFIDENCE_RESIDUAL = 0.1    # confidence halves when the residual is this fraction of the part radius
+MEASURABLE_Z = 3.0           # a motion is measured when it covers more of the part than no motion by
+                             # this many standard errors (measurable_motion)
 HALF_TURN_DEG = 150.0        # a turn above this is most likely a symmetric part's flipped match: real
                              # joints of furniture and appliances turn less (the 21 rendered joints
                              # 37-75 deg, the real laptop 96 deg)
@@ -179,6 +182,27 @@ def covered_fraction(start: np.ndarray, end: np.ndarray, end_tree: cKDTree, rota
     forward = end_tree.query(moved, distance_upper_bound=radius)[0] < radius
     backward = cKDTree(moved).query(end, distance_upper_bound=radius)[0] < radius
     return float(0.5 * (forward.mean() + backward.mean()))
+
+
+def measurable_motion(covered: float, unmoved: float, n_start: int, n_end: int) -> bool:
+    """Is the fitted motion measurable at all: does it lay more of the part onto the other state
+    than no motion does, by more than the two shares' sampling error?
+
+    ``covered`` and ``unmoved`` are :func:`covered_fraction` of the part's n_start and n_end
+    matching points under the fitted motion and under the identity, within the same radius (the
+    fit's pair radius: 3 x the points' median spacing, which the depth noise widens). Where
+    nothing moved -- or a part moved less than the depth noise, or slid within its own featureless
+    plane -- the two states agree without any motion as closely as under the fit, so the fitted
+    motion is not a measurement: the answer is "no joint", not a joint of whatever size the
+    optimiser drifted to. Each share is a mean of two Bernoulli shares, variance p (1 - p) (1 /
+    n_start + 1 / n_end) / 4; the motion is measurable when the gain exceeds ``MEASURABLE_Z``
+    standard errors of the difference. Unit-free; O(1).
+    """
+    if n_start <= 0 or n_end <= 0:
+        return False
+    per_point = (1.0 / n_start + 1.0 / n_end) / 4.0
+    variance = sum(p * (1.0 - p) for p in (float(np.clip(covered, 0, 1)), float(np.clip(unmoved, 0, 1)))) * per_point
+    return covered - unmoved > MEASURABLE_Z * float(np.sqrt(variance))
 
 
 def inlier_fraction(start: np.ndarray, end: np.ndarray, rotation: np.ndarray, translation: np.ndarray,
