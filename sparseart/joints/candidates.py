@@ -44,7 +44,8 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
     A joint's confidence is multiplied by the labeler's trust in its part's pairing
     (``labels.confidence``; ``diagnostics["pairing_confidence"]`` when below 1).
     A fitted motion that no motion explains as well (the states agree within the depth noise:
-    :func:`~sparseart.joints.reliability.measurable_motion`) is no joint, with a warning.
+    :func:`~sparseart.joints.reliability.measurable_motion`) is no joint, with a warning -- unless
+    the cameras saw the part move (:func:`_seen_moving`).
     The stated uncertainty gains the static frame's own error (:func:`~sparseart.joints.uncertainty.
     frame_misfit`: how far the static part's two states disagree beyond their sampling).
     Returns one :class:`PartResult` per part of ``labels``; appends warnings prefixed by the part."""
@@ -104,7 +105,8 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
                                             {pid: inputs[pid][1] for pid in fitted}, free_type, body_axes)
     for pid, joint in turned_to_slides.items():
         fitted[pid].joint = joint
-    unmeasured = [pid for pid, r in fitted.items() if not _measured(r.joint, pid, warnings)]
+    unmeasured = [pid for pid, r in fitted.items()
+                  if not _seen_moving(r.joint, inputs[pid][0], free_space) and not _measured(r.joint, pid, warnings)]
     for pid in unmeasured:
         fitted.pop(pid).joint = None
     if unmeasured and not fitted:
@@ -125,6 +127,18 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
             joint.confidence *= pairing
         warnings.extend(f"part {pid}: {w}" for w in joint.warnings)
     return results
+
+
+def _seen_moving(joint: JointEstimate, points: tuple[np.ndarray, np.ndarray],
+                 free_space: tuple[StateViews, StateViews] | None) -> bool:
+    """Did the cameras see the part move: does standing still put clearly more of it (by
+    ``VIOLATION_SLACK``) where the other state's views saw empty space than the fitted motion?
+    Then the motion is measured whatever the overlap says (a handle whose round cap lands on itself
+    either way, its lever alone showing the turn). False without views. O(V S)."""
+    if free_space is None:
+        return False
+    cost = MotionCost(*points, free_space)
+    return cost.violation(np.eye(4)) > cost.violation(joint.transform) + VIOLATION_SLACK
 
 
 def _measured(joint: JointEstimate, pid: int, warnings: list[str]) -> bool:
