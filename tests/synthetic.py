@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sparseart.types import LabelledCloud
+from sparseart.types import JointEstimate, LabelledCloud
 
 
 def box_surface(size, centre, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -61,3 +61,21 @@ def make_clouds(kind: str = "revolute", amount: float = np.radians(40), noise: f
                                     pixel_index=np.arange(len(points), dtype=np.int64),
                                     confidence=np.ones(len(points)), segment_source={1: (0, 1), 2: (0, 2)}))
     return clouds[0], clouds[1], truth
+
+
+def labelled_cloud(state: str, points: np.ndarray) -> LabelledCloud:
+    """A grey LabelledCloud of (N, 3) points: no mask ids, part 0, full confidence."""
+    n = len(points)
+    return LabelledCloud(state, points, np.full((n, 3), 0.5), np.full(n, -1), np.zeros(n, np.int64),
+                         np.arange(n), np.ones(n))
+
+
+def joint_estimate(kind: str, axis, origin, amount: float, transform: np.ndarray,
+                   axis_sigma_deg: float = 0.1) -> JointEstimate:
+    """A JointEstimate of ``kind`` turning ``amount`` rad / sliding ``amount`` units, confidence 0.9."""
+    uncertainty = {"axis_deg": axis_sigma_deg, "origin": 0.001,
+                   ("angle" if kind == "revolute" else "distance"): 0.01}
+    return JointEstimate(type=kind, axis=np.asarray(axis, float), origin=np.asarray(origin, float),
+                         angle=amount if kind == "revolute" else None,
+                         distance=amount if kind == "prismatic" else None, transform=transform,
+                         uncertainty=uncertainty, residual=0.001, confidence=0.9)

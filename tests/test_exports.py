@@ -12,7 +12,7 @@ from sparseart.types import (Articulation, JointEstimate, LabelledCloud, PartLab
 from sparseart.io.urdf import write_urdf
 from sparseart.io.report import write_report
 
-from synthetic import box_surface
+from synthetic import box_surface, joint_estimate, labelled_cloud
 
 HINGE_AXIS = np.array([0.0, 0.0, 1.0])
 HINGE_ORIGIN = np.array([0.3, -0.2, 0.4])
@@ -23,18 +23,7 @@ KNOB_AXIS = np.array([0.0, 1.0, 0.0])
 KNOB_ORIGIN = np.array([0.5, -0.2, 0.6])
 
 
-def _cloud(state: str, points: np.ndarray) -> LabelledCloud:
-    n = len(points)
-    return LabelledCloud(state, points, np.full((n, 3), 0.5), np.full(n, -1), np.zeros(n, np.int64),
-                         np.arange(n), np.ones(n))
-
-
-def _joint(kind: str, axis, origin, amount: float, transform: np.ndarray) -> JointEstimate:
-    uncertainty = {"axis_deg": 0.1, "origin": 0.001, ("angle" if kind == "revolute" else "distance"): 0.01}
-    return JointEstimate(type=kind, axis=np.asarray(axis, float), origin=np.asarray(origin, float),
-                         angle=amount if kind == "revolute" else None,
-                         distance=amount if kind == "prismatic" else None, transform=transform,
-                         uncertainty=uncertainty, residual=0.001, confidence=0.9)
+_cloud, _joint = labelled_cloud, joint_estimate
 
 
 @pytest.fixture

@@ -15,11 +15,12 @@ import pytest
 from sparseart.cli import main
 from sparseart.geometry.transforms import apply_transform, transform_from_prismatic, transform_from_revolute
 from sparseart.io.articulation import write_articulation
-from sparseart.io.ply import part_colour, write_labelled_clouds
-from sparseart.io.urdf import write_urdf
+from sparseart.io.ply import part_colour, write_labelled_clouds, write_ply
+from sparseart.io.urdf import link_name
 from sparseart.view import cone_mesh, load_view_data, part_poses, slider_range
 from sparseart.types import (Articulation, JointEstimate, LabelledCloud, PartLabels, PartResult, PartSpec,
                              StageRecord)
+from synthetic import joint_estimate, labelled_cloud
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or ("/usr/bin/chromium" if Path("/usr/bin/chromium").exists() else None)
@@ -33,18 +34,11 @@ SLIDE_AXIS, SLIDE_DISTANCE = np.array([0.0, -1.0, 0.0]), 0.25
 KNOB_AXIS, KNOB_ORIGIN, KNOB_ANGLE = np.array([1.0, 0.0, 0.0]), np.array([0.3, 0.1, 0.6]), 0.8
 
 
-def _cloud(state: str, points: np.ndarray) -> LabelledCloud:
-    n = len(points)
-    return LabelledCloud(state, points, np.full((n, 3), 0.5), np.full(n, -1), np.zeros(n, np.int64),
-                         np.arange(n), np.ones(n))
+_cloud = labelled_cloud
 
 
 def _joint(kind: str, axis, origin, amount: float, transform: np.ndarray) -> JointEstimate:
-    uncertainty = {"axis_deg": 4.0, "origin": 0.001, ("angle" if kind == "revolute" else "distance"): 0.01}
-    return JointEstimate(type=kind, axis=np.asarray(axis, float), origin=np.asarray(origin, float),
-                         angle=amount if kind == "revolute" else None,
-                         distance=amount if kind == "prismatic" else None, transform=transform,
-                         uncertainty=uncertainty, residual=0.001, confidence=0.9)
+    return joint_estimate(kind, axis, origin, amount, transform, axis_sigma_deg=4.0)   # cones wide enough to see
 
 
 @pytest.fixture
@@ -76,13 +70,20 @@ def articulation() -> Articulation:
 
 
 def _write_out(result: Articulation, out: Path, ply: bool = True, urdf: bool = True) -> Path:
-    """OUT/ as ``sparseart run --ply --urdf`` writes it (the same writers)."""
+    """OUT/ as ``sparseart run --ply`` writes it (the same writers), and with ``urdf`` each link's
+    start points as ``meshes/<link>.ply`` in its link frame (the URDF's frames; what the viewer
+    shows when a folder has link clouds but no fused OBJ meshes)."""
     out.mkdir(parents=True, exist_ok=True)
     write_articulation(result, out)
     if ply:
         write_labelled_clouds(result, out)
     if urdf:
-        write_urdf(result, out, name="object")
+        cloud, labels = result.start_cloud, result.labels.start_part
+        for part in result.parts:
+            origin = part.joint.origin if part.joint is not None else np.zeros(3)
+            keep = labels == part.spec.id
+            write_ply(out / "meshes" / f"{link_name(part.spec.id)}.ply", cloud.points[keep] - origin,
+                      cloud.colors[keep])
     return out
 
 

@@ -15,7 +15,6 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from sparseart.io.scene import write_bytes_atomic
 from sparseart.io.urdf import _fmt
 from sparseart.types import Articulation
 
@@ -79,13 +78,6 @@ def write_mjcf(result: Articulation, out_dir: str | Path, name: str = "object",
     Raises:
         ValueError: a joint holds non-finite numbers, or the result has no labelled clouds.
     """
-    from sparseart.sim.model import build_model, write_meshes
+    from sparseart.sim.model import write_xml_export
 
-    out_dir = Path(out_dir)
-    model = model or build_model(result, name=name)
-    tree = mjcf_tree(model)
-    write_meshes(model, out_dir)
-    payload = "<!-- " + model.header() + " -->\n" + ET.tostring(tree.getroot(), encoding="unicode") + "\n"
-    path = out_dir / f"{name}.xml"
-    write_bytes_atomic(path, payload.encode())
-    return path
+    return write_xml_export(result, out_dir, f"{name}.xml", model, name, mjcf_tree)

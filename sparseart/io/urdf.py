@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from sparseart.io.scene import write_bytes_atomic
 from sparseart.types import Articulation
 
 if TYPE_CHECKING:
@@ -88,14 +87,6 @@ def write_urdf(result: Articulation, out_dir: str | Path, name: str = "object",
     Raises:
         ValueError: a joint holds non-finite numbers, or the result has no labelled clouds.
     """
-    from sparseart.sim.model import build_model, write_meshes
+    from sparseart.sim.model import write_xml_export
 
-    out_dir = Path(out_dir)
-    model = model or build_model(result, name=name)
-    tree = urdf_tree(model)
-    write_meshes(model, out_dir)
-    payload = ('<?xml version="1.0"?>\n<!-- ' + model.header() + " -->\n"
-               + ET.tostring(tree.getroot(), encoding="unicode") + "\n")
-    path = out_dir / f"{name}.urdf"
-    write_bytes_atomic(path, payload.encode())
-    return path
+    return write_xml_export(result, out_dir, f"{name}.urdf", model, name, urdf_tree, prolog='<?xml version="1.0"?>\n')

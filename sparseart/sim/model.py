@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import json
 import time
+import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -203,6 +205,23 @@ def visual_path(link: SimLink) -> str:
 def collision_paths(link: SimLink) -> list[str]:
     """Paths of a link's convex collision OBJs, relative to the export folder."""
     return [f"meshes/collision/{link.name}_{k}.obj" for k in range(len(link.hulls))]
+
+
+def write_xml_export(result: Articulation, out_dir: str | Path, file_name: str, model: SimModel | None,
+                     name: str, tree_of: Callable[[SimModel], ET.ElementTree], prolog: str = "") -> Path:
+    """The XML exports' common steps (URDF, MJCF): the model (built here when not given), its
+    meshes (:func:`write_meshes`), then ``out_dir/<file_name>`` atomically: ``prolog``, the
+    model's header as a comment, the tree. Returns the written path."""
+    from sparseart.io.scene import write_bytes_atomic
+
+    out_dir = Path(out_dir)
+    model = model or build_model(result, name=name)
+    tree = tree_of(model)
+    write_meshes(model, out_dir)
+    payload = prolog + "<!-- " + model.header() + " -->\n" + ET.tostring(tree.getroot(), encoding="unicode") + "\n"
+    path = out_dir / file_name
+    write_bytes_atomic(path, payload.encode())
+    return path
 
 
 def write_meshes(model: SimModel, out_dir: str | Path) -> list[Path]:
