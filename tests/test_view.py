@@ -16,7 +16,7 @@ from sparseart.cli import main
 from sparseart.geometry.transforms import apply_transform, transform_from_prismatic, transform_from_revolute
 from sparseart.io.articulation import write_articulation
 from sparseart.io.ply import part_colour, write_labelled_clouds, write_ply
-from sparseart.io.urdf import link_name
+from sparseart.sim.links import link_name
 from sparseart.view import cone_mesh, load_view_data, part_poses, slider_range
 from sparseart.types import (Articulation, JointEstimate, LabelledCloud, PartLabels, PartResult, PartSpec,
                              StageRecord)

@@ -65,7 +65,7 @@ def mjcf_tree(model: "SimModel") -> ET.ElementTree:
 
 
 def _effort() -> float:
-    from sparseart.sim.model import PLACEHOLDER_EFFORT
+    from sparseart.sim.links import PLACEHOLDER_EFFORT
 
     return PLACEHOLDER_EFFORT
 

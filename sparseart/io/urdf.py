@@ -22,22 +22,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from sparseart.sim.links import PLACEHOLDER_EFFORT, PLACEHOLDER_VELOCITY
 from sparseart.types import Articulation
 
 if TYPE_CHECKING:
     from sparseart.sim.model import SimModel
 
-PLACEHOLDER_EFFORT = 1.0
-PLACEHOLDER_VELOCITY = 1.0
-
-
 def _fmt(values) -> str:
     return " ".join(f"{float(v):.9g}" for v in np.atleast_1d(np.asarray(values, dtype=np.float64)))
-
-
-def link_name(part_id: int) -> str:
-    """``base`` for the static part 0, ``part_<id>`` otherwise."""
-    return "base" if part_id == 0 else f"part_{part_id}"
 
 
 def urdf_tree(model: "SimModel") -> ET.ElementTree:

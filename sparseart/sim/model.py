@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sparseart.io.urdf import PLACEHOLDER_EFFORT, PLACEHOLDER_VELOCITY, link_name
+from sparseart.sim.links import PLACEHOLDER_EFFORT, PLACEHOLDER_VELOCITY, link_name
 from sparseart.types import Articulation
 
 __all__ = ["PLACEHOLDER_EFFORT", "PLACEHOLDER_VELOCITY", "SimLink", "SimJoint", "SimModel", "build_model",

@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from sparseart.geometry.transforms import apply_transform, transform_from_prismatic, transform_from_revolute
-from sparseart.io.urdf import link_name
+from sparseart.sim.links import link_name
 from sparseart.types import Articulation, Camera, JointEstimate
 
 TRIANGLE_BUDGET = 8000          # triangles per part after quadric decimation (simulators load it in ms)

@@ -20,7 +20,7 @@ import numpy as np
 from sparseart.geometry.transforms import transform_from_prismatic, transform_from_revolute
 from sparseart.io.articulation import SCHEMA
 from sparseart.io.ply import part_colours
-from sparseart.io.urdf import link_name
+from sparseart.sim.links import link_name
 from sparseart.io.validate import is_number, load_json_file, number, one_line
 from sparseart.types import SceneError
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from sparseart.geometry.transforms import apply_transform
 from sparseart.io.ply import part_colour, part_colours
-from sparseart.io.urdf import link_name
+from sparseart.sim.links import link_name
 from sparseart.io.validate import one_line
 from sparseart.types import SceneError
 from sparseart.view.data import JointView, ViewData, part_poses, slider_range
