@@ -129,6 +129,7 @@ class PairContext:
     start_obstacles: list[cKDTree | None] = field(default_factory=list)
     _state_trees: dict = field(default_factory=dict)
     end_obstacles: list[cKDTree | None] = field(default_factory=list)
+    turning_in_place: set[tuple[int, int]] = field(default_factory=set)  # (i, j) scored without brightness
 
     def prepare(self) -> None:
         """Samples, group trees and the per-group obstacle trees (the state without the group)."""
@@ -225,12 +226,14 @@ def pair_score(ctx: PairContext, i: int, j: int, transform: np.ndarray,
     (:func:`set_score` on the groups' samples). O(S (log M + V))."""
     source_idx, target_idx = samples or (ctx.start_samples[i], ctx.end_samples[j])
     return set_score(ctx.start, ctx.end, source_idx, target_idx, ctx.start_trees[i], ctx.end_trees[j],
-                     ctx.end_groups[j].indices, transform, ctx.radius, ctx.start_views, ctx.end_views)
+                     ctx.end_groups[j].indices, transform, ctx.radius, ctx.start_views, ctx.end_views,
+                     without_brightness=(i, j) in ctx.turning_in_place)
 
 
 def set_score(start: LabelledCloud, end: LabelledCloud, source_idx: np.ndarray, target_idx: np.ndarray,
               source_tree: cKDTree, target_tree: cKDTree, target_members: np.ndarray, transform: np.ndarray,
-              radius: float, start_views: StateViews, end_views: StateViews) -> float:
+              radius: float, start_views: StateViews, end_views: StateViews,
+              without_brightness: bool = False) -> float:
     """Symmetric overlap of a start point set moved by ``transform`` and an end point set, over
     what the views could judge, times colour agreement; in [0, 1].
 
@@ -239,7 +242,9 @@ def set_score(start: LabelledCloud, end: LabelledCloud, source_idx: np.ndarray, 
     (their indices). Forward: the share of moved start samples landing within ``radius`` of the
     end set among those the end views could judge (:func:`~sparseart.geometry.free_space.visible_fraction`; all
     without views); backward the same for the end samples moved back. Colour: 1 - 0.5 min(1,
-    mean |difference| / 0.25) over the forward hits. O(S (log M + V)).
+    mean |difference| / 0.25) over the forward hits, of their RGB, or ``without_brightness`` of
+    their rg chromaticity (a part turning in place changes its shading point by point while
+    standing still keeps it: :mod:`~sparseart.labelers.colour`). O(S (log M + V)).
     """
     source, target = start.points[source_idx], end.points[target_idx]
     moved = apply(transform, source)
@@ -252,8 +257,10 @@ def set_score(start: LabelledCloud, end: LabelledCloud, source_idx: np.ndarray, 
                 else float(back_hits.mean()))
     if hits.any():
         end_colours = end.colors[target_members]
-        difference = np.abs(rg_chromaticity(start.colors[source_idx][hits])
-                            - rg_chromaticity(end_colours[nearest[hits]])).mean()
+        colours = (start.colors[source_idx][hits], end_colours[nearest[hits]])
+        if without_brightness:
+            colours = tuple(rg_chromaticity(c) for c in colours)
+        difference = np.abs(colours[0] - colours[1]).mean()
         colour = 1.0 - 0.5 * min(1.0, difference / 0.25)
     else:
         colour = 0.5
@@ -503,10 +510,16 @@ def score_pairs(ctx: PairContext, match_min_score: float, motion_hints: list[np.
         ctx.set_static(np.concatenate([ctx.start_groups[i].indices for i in sorted(settled_start)]))
     rng = np.random.default_rng(ctx.seed + 3)
     keys = [key for key in sorted(identity) if key[0] not in settled_start and key[1] not in settled_end]
+    # Pairs whose identity overlap is trusted may be a part turning about its own round body (a
+    # faucet's cap with its lever): they search turns about the static axes, and all their motions,
+    # standing still included, are compared without brightness (a turn changes the shading)
+    ctx.turning_in_place = {key for key in keys if identity[key] >= IDENTITY_TRUSTED_SCORE}
+    for key in sorted(ctx.turning_in_place):
+        identity[key] = pair_score(ctx, *key, eye)
     # the coarse samples drawn in key order, then the pairs registered side by side (pure given them)
     draws = [_coarse_samples(ctx, i, j, rng) for i, j in keys]
     registered = in_parallel(lambda item: _register_pair(ctx, *item[0], match_min_score, item[1],
-                                                         identity[item[0]] >= IDENTITY_TRUSTED_SCORE),
+                                                         item[0] in ctx.turning_in_place),
                              list(zip(keys, draws)))
     registrations = dict(zip(keys, registered))
     # Pairs the cheap hypotheses explain poorly get the global registration too: the best
