@@ -123,11 +123,11 @@ def _parser() -> argparse.ArgumentParser:
     view = commands.add_parser("view", help="an interactive 3-D page of a run's output folder (needs the view extra)")
     view.add_argument("out", type=Path, help="output folder of sparseart run (articulation.json; --ply and/or --urdf)")
     view.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1: this machine only)")
-    view.add_argument("--port", type=int, default=8080,
+    view.add_argument("--port", type=_integer(0, 65535), default=8080,
                       help="port (default 8080; a busy port moves to the next; 0 = any)")
     view.add_argument("--up", choices=["+x", "-x", "+y", "-y", "+z", "-z"], default=None,
                       help="the scene's up direction (default: -y for a camera frame, +z for a world frame)")
-    view.add_argument("--seconds", type=float, default=None,
+    view.add_argument("--seconds", type=_number(0.0), default=None,
                       help="serve this long, then exit (headless scripts and tests; default: until Ctrl-C)")
 
     demo = commands.add_parser("demo", help="render a procedural cabinet and recover its joints")
@@ -284,11 +284,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
 def _cmd_view(args: argparse.Namespace) -> int:
     """``sparseart view OUT``: serve the interactive page of an output folder (sparseart.view;
-    viser is imported only here)."""
-    if not 0 <= args.port <= 65535:
-        raise SceneError(f"--port must lie in [0, 65535], got {args.port}")
-    if args.seconds is not None and not (math.isfinite(args.seconds) and args.seconds >= 0):
-        raise SceneError(f"--seconds must be a finite number >= 0, got {args.seconds}")
+    viser is imported only here; --port and --seconds are checked by the parser)."""
     from sparseart.view import load_view_data, serve
 
     data = load_view_data(args.out)  # bad input is reported before viser is needed
@@ -297,7 +293,6 @@ def _cmd_view(args: argparse.Namespace) -> int:
     except ImportError:
         raise SceneError("sparseart view needs viser: pip install 'sparseart[view]'") from None
     return serve(data, host=args.host, port=args.port, seconds=args.seconds, up=args.up)
-
 
 
 def _matcher_min_score(args: argparse.Namespace) -> float | None:
@@ -353,11 +348,16 @@ def _write_extras(result, args: argparse.Namespace, out_dir: Path | None = None)
     return written
 
 
+def _sim_flags(args: argparse.Namespace) -> list[str]:
+    """The simulator exports asked for: "urdf", "mjcf", "usd" in that order."""
+    return [flag for flag in ("urdf", "mjcf", "usd") if getattr(args, flag, False)]
+
+
 def _check_sim_extra(args: argparse.Namespace) -> None:
     """Before any work: --urdf / --mjcf / --usd need the ``sim`` extra (coacd, trimesh; pxr for USD)."""
     import importlib.util
 
-    flags = [flag for flag in ("urdf", "mjcf", "usd") if getattr(args, flag, False)]
+    flags = _sim_flags(args)
     needed = ["coacd", "trimesh", *(["pxr"] if "usd" in flags else [])] if flags else []
     missing = [module for module in needed if importlib.util.find_spec(module) is None]
     if missing:
@@ -371,7 +371,7 @@ def _write_sim_exports(result, args: argparse.Namespace, out_dir: Path) -> list[
     meshes/summary.json."""
     import time
 
-    flags = [flag for flag in ("urdf", "mjcf", "usd") if getattr(args, flag, False)]
+    flags = _sim_flags(args)
     if not flags:
         return []
     names = " / ".join(f"--{flag}" for flag in flags)

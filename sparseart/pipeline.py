@@ -331,14 +331,13 @@ def _without_fragmented_masks(scene: Scene) -> Scene:
     with ``use_masks=False`` (:func:`run` reads the missing masks so). Only the scene's own masks
     are judged: they claim to be part masks, while the built-in and SAM segmenters over-segment by
     design and their segments are merged by motion in the labeler."""
-    from sparseart.segment.base import MAX_EFFECTIVE_SEGMENTS, effective_segments, fragmented_frames
+    from sparseart.segment.base import MAX_EFFECTIVE_SEGMENTS, fragmented_frames
 
     fragmented = fragmented_frames(scene.all_frames)
     if not fragmented:
         return scene
     named = ", ".join(f"{f.state}/mask/{f.mask_path.name if f.mask_path else f.rgb_path.stem + '.png'} "
-                      f"({effective_segments(f.mask, None if f.depth is None else f.depth > 0):.0f})"
-                      for f in fragmented[:4])
+                      f"({pieces:.0f})" for f, pieces in fragmented[:4])
     more = f" and {len(fragmented) - 4} more" if len(fragmented) > 4 else ""
     stripped = _without_masks(scene)
     stripped.warnings = [*scene.warnings,

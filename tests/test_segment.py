@@ -333,5 +333,6 @@ def test_fragmented_frames_name_checkerboards_not_part_masks() -> None:
                      rgb=np.zeros((120, 160, 3), np.uint8), depth=depth, mask=mask)
 
     found = fragmented_frames([frame(parts, 0), frame(checker, 1), frame(None, 2)])
-    assert [f.index for f in found] == [1]
+    assert [f.index for f, _ in found] == [1]
+    assert found[0][1] > MAX_EFFECTIVE_SEGMENTS
     assert MAX_EFFECTIVE_SEGMENTS >= 3 * 3.1   # the corpus' part masks stay far below it

@@ -105,8 +105,12 @@ def fit_parts(start: LabelledCloud, end: LabelledCloud, labels: PartLabels, *, j
                                             {pid: inputs[pid][1] for pid in fitted}, free_type, body_axes)
     for pid, joint in turned_to_slides.items():
         fitted[pid].joint = joint
-    unmeasured = [pid for pid, r in fitted.items()
-                  if not _seen_moving(r.joint, inputs[pid][0], free_space) and not _measured(r.joint, pid, warnings)]
+    unmeasured = []
+    for pid, result in fitted.items():   # the cameras' test only for motions the overlap does not measure
+        reason = _unmeasured_reason(result.joint)
+        if reason is not None and not _seen_moving(result.joint, inputs[pid][0], free_space):
+            warnings.append(f"part {pid}: {reason}")
+            unmeasured.append(pid)
     for pid in unmeasured:
         fitted.pop(pid).joint = None
     if unmeasured and not fitted:
@@ -141,21 +145,20 @@ def _seen_moving(joint: JointEstimate, points: tuple[np.ndarray, np.ndarray],
     return cost.violation(np.eye(4)) > cost.violation(joint.transform) + VIOLATION_SLACK
 
 
-def _measured(joint: JointEstimate, pid: int, warnings: list[str]) -> bool:
-    """Whether the part's fitted motion is a measurement (:func:`~sparseart.joints.reliability.
+def _unmeasured_reason(joint: JointEstimate) -> str | None:
+    """None when the part's fitted motion is a measurement (:func:`~sparseart.joints.reliability.
     measurable_motion`: it lays more of the part onto the other state than no motion, beyond
-    sampling); if not, says so in ``warnings`` (the caller drops the joint). A joint without the
-    fit's coverage diagnostics counts as measured."""
+    sampling), else the warning that says why not (the caller drops the joint unless the cameras
+    saw it move). A joint without the fit's coverage diagnostics counts as measured."""
     covered, unmoved = joint.diagnostics.get("covered_fraction"), joint.diagnostics.get("covered_unmoved")
     counts = joint.diagnostics.get("match_points")
     if covered is None or unmoved is None or counts is None or measurable_motion(covered, unmoved, *counts):
-        return True
+        return None
     amount = (f"{np.degrees(joint.angle):.3g} deg turn" if joint.type == "revolute"
               else f"{joint.distance:.3g} slide")
-    warnings.append(f"part {pid}: no measurable motion, no joint: its two states agree without any motion "
-                    f"({100 * unmoved:.0f} % of its points on the other state) as well as under the fitted "
-                    f"{amount} ({100 * covered:.0f} %), i.e. within the depth noise")
-    return False
+    return (f"no measurable motion, no joint: its two states agree without any motion "
+            f"({100 * unmoved:.0f} % of its points on the other state) as well as under the fitted "
+            f"{amount} ({100 * covered:.0f} %), i.e. within the depth noise")
 
 
 def _static_tree(start: LabelledCloud, end: LabelledCloud, labels: PartLabels) -> tuple[cKDTree, float] | None:

@@ -23,9 +23,9 @@ or a rough state alignment widen it on their own.
 """
 from __future__ import annotations
 
-import numpy as np
 from functools import cached_property
 
+import numpy as np
 from scipy.spatial import cKDTree
 
 from sparseart.geometry.clouds import median_spacing, rms_radius

@@ -63,10 +63,10 @@ def effective_segments(labels: np.ndarray, valid: np.ndarray | None = None) -> f
     return float(areas.sum() ** 2 / np.sum(areas ** 2))
 
 
-def fragmented_frames(frames: list[Frame]) -> list[Frame]:
-    """The frames whose masks cut the object into far more pieces than parts could be: more than
-    ``MAX_EFFECTIVE_SEGMENTS`` :func:`effective_segments` over the pixels with depth (all labelled
-    pixels when the frame has no depth). Such ids do not follow parts (the labeler would pair
+def fragmented_frames(frames: list[Frame]) -> list[tuple[Frame, float]]:
+    """(frame, its effective segments) of the frames whose masks cut the object into far more
+    pieces than parts could be: more than ``MAX_EFFECTIVE_SEGMENTS`` :func:`effective_segments`
+    over the pixels with depth (all labelled pixels when the frame has no depth). Such ids do not follow parts (the labeler would pair
     hundreds of blocks that tile the image across the states); the caller ignores the masks and
     splits the parts by motion. Frames without a mask are never fragmented. O(H W log S) each."""
     found = []
@@ -74,8 +74,9 @@ def fragmented_frames(frames: list[Frame]) -> list[Frame]:
         if frame.mask is None:
             continue
         valid = None if frame.depth is None else np.asarray(frame.depth) > 0
-        if effective_segments(frame.mask, valid) > MAX_EFFECTIVE_SEGMENTS:
-            found.append(frame)
+        pieces = effective_segments(frame.mask, valid)
+        if pieces > MAX_EFFECTIVE_SEGMENTS:
+            found.append((frame, pieces))
     return found
 
 

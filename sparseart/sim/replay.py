@@ -220,24 +220,12 @@ def usd_links(stage, values: dict[str, float]) -> tuple[dict, dict]:
 SURFACE_SAMPLES = 20000
 
 
-def sample_surface(vertices: np.ndarray, faces: np.ndarray, count: int = SURFACE_SAMPLES, seed: int = 0) -> np.ndarray:
-    """(count, 3) float64 points uniformly on a triangle mesh (area-weighted, seeded)."""
-    triangles = vertices[faces]
-    areas = 0.5 * np.linalg.norm(np.cross(triangles[:, 1] - triangles[:, 0], triangles[:, 2] - triangles[:, 0]), axis=1)
-    rng = np.random.default_rng(seed)
-    pick = rng.choice(len(faces), count, p=areas / areas.sum())
-    uv = rng.random((count, 2))
-    flip = uv.sum(1) > 1
-    uv[flip] = 1 - uv[flip]
-    t = triangles[pick]
-    return t[:, 0] + uv[:, :1] * (t[:, 1] - t[:, 0]) + uv[:, 1:] * (t[:, 2] - t[:, 0])
-
-
 def _landing(mesh: tuple[np.ndarray, np.ndarray], observed: np.ndarray) -> tuple[float, float]:
     """(mean observed -> moved surface distance, symmetric Chamfer (mean of both directions' means))."""
+    import trimesh
     from scipy.spatial import cKDTree
 
-    moved = sample_surface(*mesh)
+    moved = trimesh.sample.sample_surface(trimesh.Trimesh(*mesh, process=False), SURFACE_SAMPLES, seed=0)[0]
     to_mesh = cKDTree(moved).query(observed)[0]
     to_points = cKDTree(observed).query(moved)[0]
     return float(to_mesh.mean()), float(0.5 * (to_mesh.mean() + to_points.mean()))
